@@ -1,0 +1,178 @@
+"""Damper descriptions: the TOML contract (``shared/spec/formats.md`` section 1) to a frozen
+:class:`Damper`.
+
+Units are SI throughout. The parameter names used here (``m1``, ``J1``, ``a1``, ``L1``, ``mu``,
+...) are the public vocabulary shared with :mod:`sbcal.fem`, the priors and the CLI.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from .errors import InputError
+
+__all__ = ["Damper", "load_damper", "bundled_dampers", "resolve_damper"]
+
+
+@dataclass(frozen=True)
+class Damper:
+    """Nominal description of one Stockbridge damper (SI units).
+
+    Attributes
+    ----------
+    name : str
+        Matches the ``damper`` column of bench recordings.
+    m1, J1, a1 : float
+        End mass 1 [kg], its inertia about its own centre of mass [kg m^2], and the signed
+        offset of its centre of mass from the cable node along y [m].
+    m2, J2, a2 : float
+        The same for end mass 2 (``a2 < 0`` points towards the clamp).
+    mc, Jc, ac : float
+        The clamp's mass [kg], inertia [kg m^2] and offset [m].
+    L1, L2 : float
+        Free cable lengths mass 1 - clamp and clamp - mass 2 [m].
+    mu : float
+        Messenger cable mass per metre [kg/m].
+    ej_static : float
+        Full-stick flexural rigidity [N m^2]: the upper bound of EJ and its nominal value.
+    description : str
+        Free text.
+    source : str
+        Where the description was read from ("" when built in code).
+    """
+
+    name: str
+    m1: float
+    J1: float
+    a1: float
+    m2: float
+    J2: float
+    a2: float
+    mc: float
+    Jc: float
+    ac: float
+    L1: float
+    L2: float
+    mu: float
+    ej_static: float
+    description: str = ""
+    source: str = ""
+
+    @property
+    def total_mass(self) -> float:
+        """Total moving mass [kg]: the rigid-body limit of ``-f_uu / omega^2``."""
+        return self.m1 + self.m2 + self.mc + self.mu * (self.L1 + self.L2)
+
+
+# (table, key) -> (Damper field, required, check) ; check in {"pos", "nonneg", "any"}
+_FIELDS = (
+    ("clamp", "mass_kg", "mc", True, "pos"),
+    ("clamp", "inertia_kg_m2", "Jc", True, "nonneg"),
+    ("clamp", "offset_m", "ac", False, "any"),
+    ("mass1", "mass_kg", "m1", True, "pos"),
+    ("mass1", "inertia_kg_m2", "J1", True, "nonneg"),
+    ("mass1", "offset_m", "a1", False, "any"),
+    ("mass2", "mass_kg", "m2", True, "pos"),
+    ("mass2", "inertia_kg_m2", "J2", True, "nonneg"),
+    ("mass2", "offset_m", "a2", False, "any"),
+    ("cable", "length1_m", "L1", True, "pos"),
+    ("cable", "length2_m", "L2", True, "pos"),
+    ("cable", "linear_density_kg_m", "mu", True, "nonneg"),
+    ("cable", "ej_static_nm2", "ej_static", True, "pos"),
+)
+
+
+def _number(path: str, key: str, value, check: str) -> float:
+    # bool is an int subclass in Python; "true" is not a mass.
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"{path}: key '{key}': expected a number, got {type(value).__name__} {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise InputError(f"{path}: key '{key}': value {value!r} is not finite")
+    if check == "pos" and x <= 0:
+        raise InputError(f"{path}: key '{key}': must be > 0, got {value!r}")
+    if check == "nonneg" and x < 0:
+        raise InputError(f"{path}: key '{key}': must be >= 0, got {value!r}")
+    return x
+
+
+def parse_damper(doc: dict, path: str = "<damper>") -> Damper:
+    """Validate a parsed TOML document and build a :class:`Damper` (see :func:`load_damper`)."""
+    name = doc.get("name")
+    if name is None:
+        raise InputError(f"{path}: key 'name': missing")
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{path}: key 'name': expected a non-empty string, got {name!r}")
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise InputError(f"{path}: key 'description': expected a string, got {type(description).__name__}")
+    values = {}
+    for table, key, field, required, check in _FIELDS:
+        full = f"{table}.{key}"
+        section = doc.get(table)
+        if section is None:
+            raise InputError(f"{path}: table '[{table}]': missing")
+        if not isinstance(section, dict):
+            raise InputError(f"{path}: key '{table}': expected a table, got {type(section).__name__}")
+        if key not in section:
+            if required:
+                raise InputError(f"{path}: key '{full}': missing")
+            values[field] = 0.0
+            continue
+        values[field] = _number(path, full, section[key], check)
+    return Damper(name=name, description=description, source=path, **values)
+
+
+def load_damper(path) -> Damper:
+    """Read a damper description (TOML, ``formats.md`` section 1).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The TOML file. Extra keys are allowed and ignored.
+
+    Returns
+    -------
+    Damper
+
+    Raises
+    ------
+    InputError
+        One line naming the file and key: missing file or key, malformed TOML, a value of the
+        wrong type, a non-positive mass, length or EJ_static, a negative density or inertia, a non-finite value.
+    """
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror}") from None
+    try:
+        doc = tomllib.loads(text.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: not UTF-8 text (byte {e.start})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: invalid TOML: {e}") from None
+    return parse_damper(doc, str(p))
+
+
+def bundled_dampers() -> list[str]:
+    """Names of the damper descriptions shipped with sbcal (``sbcal/models/*.toml``)."""
+    root = resources.files("sbcal") / "models"
+    return sorted(f.name[:-5] for f in root.iterdir() if f.name.endswith(".toml"))
+
+
+def resolve_damper(name_or_path) -> Damper:
+    """A bundled damper by name (``damper1``) or a description file by path."""
+    s = str(name_or_path)
+    if not s.endswith(".toml") and "/" not in s and s in bundled_dampers():
+        with resources.as_file(resources.files("sbcal") / "models" / f"{s}.toml") as f:
+            return load_damper(f)
+    if not Path(s).exists() and "/" not in s and not s.endswith(".toml"):
+        raise InputError(f"damper '{s}': neither a bundled damper ({', '.join(bundled_dampers())}) nor a file")
+    return load_damper(s)

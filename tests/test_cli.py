@@ -1,0 +1,67 @@
+import numpy as np
+import pandas as pd
+import pytest
+
+from sbcal.cli import main
+from sbcal.damper import load_damper
+from sbcal.fem import STANDARD_GRID_HZ
+from sbcal.reference import dynamic_stiffness_loop
+
+from .test_damper import GOOD
+
+
+def test_simulate_other_geometry_reproduces_loop(tmp_path):
+    toml = tmp_path / "g.toml"
+    toml.write_text(GOOD.replace('name = "x"', 'name = "geom"'))
+    out = tmp_path / "sim.csv"
+    rc = main(["simulate", "--damper", str(toml), "--set", "EJ=14", "--set", "beta1=0.4", "--set", "beta2=0.2",
+               "--set", "a1=0.026", "--amplitude", "0.5", "-o", str(out)])
+    assert rc == 0
+    s = pd.read_csv(out)
+    assert list(s.columns) == ["damper", "test", "run", "frequency_hz", "amplitude_mm_pp", "stiffness_n_per_m", "phase_deg"]
+    assert len(s) == 37 and (s.damper == "geom").all() and (s.test == "0.5-0.5").all() and (s.run == 1).all()
+    assert (s.amplitude_mm_pp == 0.5).all()
+    ref = dynamic_stiffness_loop(load_damper(toml), STANDARD_GRID_HZ, EJ=14, beta1=0.4, beta2=0.2, a1=0.026)
+    np.testing.assert_allclose(s.stiffness_n_per_m, np.abs(ref), rtol=1e-9)
+    np.testing.assert_allclose(s.phase_deg, np.degrees(np.angle(ref)), rtol=1e-9)
+
+
+def test_simulate_frequency_list_and_test_label(tmp_path):
+    out = tmp_path / "s.csv"
+    assert main(["simulate", "--damper", "damper2", "--set", "EJ=9", "--set", "beta=0.3",
+                 "--frequencies", "5,7.5,33", "--test", "mine", "-o", str(out)]) == 0
+    s = pd.read_csv(out)
+    assert list(s.frequency_hz) == [5, 7.5, 33] and (s.test == "mine").all() and (s.damper == "damper2").all()
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--set", "EX=9"], "unknown parameter 'EX'"),
+    (["--set", "EJ"], "expected NAME=VALUE"),
+    (["--set", "EJ=abc"], "is not a number"),
+    (["--frequencies", "4,x"], "--frequencies"),
+    (["--frequencies", "4,-1"], "must be finite and > 0"),
+    (["--amplitude", "0"], "--amplitude"),
+])
+def test_simulate_bad_options(tmp_path, capsys, argv, match):
+    out = tmp_path / "s.csv"
+    rc = main(["simulate", "--damper", "damper1", "-o", str(out)] + argv)
+    err = capsys.readouterr().err
+    assert rc == 2 and match in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_simulate_bad_files(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = 'x'\n[clamp\n")
+    for damper, match in ((str(bad), "invalid TOML"), (str(tmp_path / "missing.toml"), "no such file")):
+        rc = main(["simulate", "--damper", damper, "-o", str(tmp_path / "o.csv")])
+        err = capsys.readouterr().err
+        assert rc == 2 and match in err and str(tmp_path) in err and err.count("\n") == 1
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_no_command_and_unknown_option(capsys):
+    assert main([]) == 2
+    assert main(["simulate", "--damper", "damper1", "-o", "x.csv", "--bogus"]) == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments: --bogus" in err and err.count("\n") == 1
