@@ -92,7 +92,10 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
-_COMMANDS = {"simulate": (_add_simulate, _cmd_simulate)}
+# One line per subcommand; each helper pair lives above, in the order of this table.
+_COMMANDS = {
+    "simulate": (_add_simulate, _cmd_simulate),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
