@@ -1,0 +1,107 @@
+"""One calibration, end to end: bench data -> cleaned runs -> noise model -> likelihood ->
+sampler -> stored run. The CLI's ``sample`` and ``run`` commands are thin wrappers over this.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict
+
+from .bench import load_bench, noise_model, remove_outlier_runs
+from .damper import Damper
+from .ga import fit_ga
+from .likelihood import TestLikelihood
+from .priors import load_prior
+from .runs import run_dir, summarize, to_inference_data, versions, write_run
+from ._io import atomic_path
+from .sampler import SamplerConfig, sample
+
+__all__ = ["test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test"]
+
+
+def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", prior_path=None,
+                    z_threshold=None, model=None, fixed=None):
+    """Build the likelihood of one test's cleaned runs.
+
+    Returns ``(like, cleaned)`` where ``cleaned`` is the :class:`sbcal.bench.CleanedTest`.
+    """
+    td = bench.test(damper.name, test)
+    cleaned = remove_outlier_runs(td) if z_threshold is None else remove_outlier_runs(td, z_threshold=z_threshold)
+    data = cleaned.data
+    noise = noise_model(data)
+    prior = load_prior(paramset, damper, prior_path)
+    like = TestLikelihood(damper, prior, data.freq_hz, data.magnitude, data.phase_deg, noise.sigma_logmag,
+                          noise.sigma_phase, fixed=fixed, model=model, amplitude_mm_pp=data.amplitude_mm_pp)
+    return like, cleaned
+
+
+def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
+                   config: SamplerConfig = SamplerConfig(), prior_path=None, z_threshold=None,
+                   progress: bool = True, command: str = "") -> dict:
+    """Sample one test's posterior and store it under ``out``; returns the summary.
+
+    Parameters
+    ----------
+    damper : Damper
+    bench : BenchData
+    test : str
+        Test label (e.g. ``"0.5-0.5"``).
+    paramset : str
+        Named parameter set of the prior file.
+    seed : int
+        The same seed gives the same draws.
+    out : path-like
+        Root of the run store (``<out>/<damper>/<test>/<paramset>/``).
+    config : SamplerConfig
+    prior_path : path-like, optional
+    z_threshold : float, optional
+        Outlier-run threshold (default: the loader's).
+    progress : bool
+    command : str
+        The command line, kept for provenance.
+    """
+    like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path, z_threshold)
+    label = f"{damper.name}/{test}/{paramset}"
+    result = sample(like, seed=seed, config=config, progress=label if progress else None)
+    meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
+            "bench": bench.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
+            "command": command, "damper_values": {k: v for k, v in asdict(damper).items()}}
+    idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
+                              seed=seed, meta=meta)
+    summary = summarize(idata, result)
+    write_run(idata, summary, run_dir(out, damper.name, test, paramset))
+    return summary
+
+
+def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
+                   population: int = 500, generations: int = 500, prior_path=None) -> dict:
+    """The thesis's workflow (GA point fit, here differential evolution) on one test; writes ``ga.json``."""
+    like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path)
+    fit = fit_ga(like, seed=seed, population=population, generations=generations)
+    doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed,
+           "removed_runs": list(cleaned.removed_runs), "versions": versions(), **fit.as_dict()}
+    path = run_dir(out, damper.name, test, paramset) / "ga.json"
+    with atomic_path(path, ".json") as tmp:
+        tmp.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    return doc
+
+
+def _work(job):
+    damper, bench_path, test, kwargs = job
+    return test, calibrate_test(damper, load_bench(bench_path), test, **kwargs)
+
+
+def _init_worker():
+    os.environ["OMP_NUM_THREADS"] = "1"
+
+
+def calibrate_tests(damper: Damper, bench, tests, *, workers: int = 1, **kwargs) -> dict:
+    """:func:`calibrate_test` for several tests, in ``workers`` processes; ``{test: summary}``."""
+    if workers <= 1 or len(tests) <= 1:
+        return {t: calibrate_test(damper, bench, t, **kwargs) for t in tests}
+    jobs = [(damper, bench.source, t, kwargs) for t in tests]
+    with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
+        return dict(pool.map(_work, jobs))
+

@@ -1,0 +1,190 @@
+"""Prior boxes (``priors/*.toml``, schema in ``docs/priors.md``) and the sampled coordinates.
+
+A :class:`Prior` is the product of independent uniform or log-uniform boxes over the parameters
+of one named set (``theta1`` ...) plus the likelihood's model-error scales. The sampler works in
+coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter and
+``z = log(x)`` for a log-uniform one, so the log-prior is 0 inside the box and ``-inf`` outside.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .damper import Damper
+from .errors import InputError
+from .fem import PARAMETER_NAMES
+
+__all__ = ["Prior", "load_prior", "parameter_sets"]
+
+_DISTS = ("uniform", "loguniform")
+_MODEL_ERROR = ("sigma_mag", "sigma_phase")
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Independent boxes over one parameter set, in natural units.
+
+    Attributes
+    ----------
+    paramset : str
+        Name of the set (e.g. ``"theta1"``).
+    names : tuple of str
+        The sampled parameters, model parameters first, then ``sigma_mag``, ``sigma_phase``.
+    log_scale : ndarray of bool, shape (ndim,)
+        True where the box is log-uniform (sampled as ``log x``).
+    lower, upper : ndarray, shape (ndim,)
+        Box bounds in natural units.
+    """
+
+    paramset: str
+    names: tuple
+    log_scale: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @property
+    def ndim(self) -> int:
+        return len(self.names)
+
+    @property
+    def model_names(self) -> tuple:
+        """The forward-model parameters (without the model-error scales)."""
+        return tuple(n for n in self.names if n not in _MODEL_ERROR)
+
+    def __post_init__(self):
+        # the box in sampled coordinates, computed once: log_prob runs on every sampler step
+        for name, bound in (("z_lower", self.lower), ("z_upper", self.upper)):
+            z = np.where(self.log_scale, np.log(np.where(self.log_scale, bound, 1.0)), bound)
+            object.__setattr__(self, name, z)
+
+    def to_natural(self, z) -> np.ndarray:
+        """Sampled coordinates ``(n, ndim)`` -> natural units ``(n, ndim)``."""
+        z = np.atleast_2d(z)
+        return np.where(self.log_scale, np.exp(z), z)
+
+    def to_z(self, x) -> np.ndarray:
+        """Natural units ``(n, ndim)`` -> sampled coordinates."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.log_scale, np.log(x), x)
+
+    def log_prob(self, z) -> np.ndarray:
+        """Log-density in ``z`` (0 inside the box, ``-inf`` outside): shape ``(n,)``."""
+        z = np.atleast_2d(z)
+        inside = np.all((z >= self.z_lower) & (z <= self.z_upper), axis=1)
+        return np.where(inside, 0.0, -np.inf)
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` draws in ``z``, shape ``(n, ndim)``."""
+        return rng.uniform(self.z_lower, self.z_upper, size=(n, self.ndim))
+
+    def as_dict(self) -> dict:
+        """JSON-friendly description (stored with every run)."""
+        return {"paramset": self.paramset, "parameters": {
+            n: {"dist": "loguniform" if s else "uniform", "lower": float(lo), "upper": float(hi)}
+            for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
+
+
+def _default_path():
+    return resources.files("sbcal") / "priors" / "default.toml"
+
+
+def _read(path) -> tuple[dict, str]:
+    if path is None:
+        with resources.as_file(_default_path()) as p:
+            return tomllib.loads(p.read_text()), "priors/default.toml"
+    p = Path(path)
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8")), str(p)
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: invalid TOML: {e}") from None
+
+
+def parameter_sets(path=None) -> dict:
+    """Named parameter sets of a prior file: ``{"theta1": ["beta", "a1", "a2", "EJ"], ...}``."""
+    doc, src = _read(path)
+    sets = doc.get("sets")
+    if not isinstance(sets, dict) or not sets:
+        raise InputError(f"{src}: table '[sets]': missing or empty")
+    return {k: list(v) for k, v in sets.items()}
+
+
+def _bounds(src: str, key: str, spec: dict, name: str, damper: Damper) -> tuple[bool, float, float]:
+    if not isinstance(spec, dict):
+        raise InputError(f"{src}: key '{key}': expected a table")
+    dist = spec.get("dist")
+    if dist not in _DISTS:
+        raise InputError(f"{src}: key '{key}.dist': expected one of {', '.join(_DISTS)}, got {dist!r}")
+    ways = [w for w in ("lower", "relative", "fraction_of_ej_static") if w in spec]
+    if len(ways) != 1:
+        raise InputError(f"{src}: key '{key}': give exactly one of lower/upper, relative, fraction_of_ej_static")
+
+    def num(k, v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{src}: key '{key}.{k}': expected a finite number, got {v!r}")
+        return float(v)
+
+    if ways[0] == "lower":
+        if "upper" not in spec:
+            raise InputError(f"{src}: key '{key}.upper': missing")
+        lo, hi = num("lower", spec["lower"]), num("upper", spec["upper"])
+    elif ways[0] == "relative":
+        r = num("relative", spec["relative"])
+        if not 0 <= r < 1:
+            raise InputError(f"{src}: key '{key}.relative': must be in [0, 1), got {r}")
+        nominal = getattr(damper, name)
+        lo, hi = sorted((nominal * (1 - r), nominal * (1 + r)))
+    else:
+        f = spec["fraction_of_ej_static"]
+        if not isinstance(f, list) or len(f) != 2:
+            raise InputError(f"{src}: key '{key}.fraction_of_ej_static': expected [lo, hi]")
+        lo, hi = (num("fraction_of_ej_static", v) * damper.ej_static for v in f)
+    if not lo < hi:
+        raise InputError(f"{src}: key '{key}': lower {lo:g} must be < upper {hi:g}")
+    if dist == "loguniform" and lo <= 0:
+        raise InputError(f"{src}: key '{key}': a log-uniform box needs lower > 0, got {lo:g}")
+    return dist == "loguniform", lo, hi
+
+
+def load_prior(paramset: str, damper: Damper, path=None) -> Prior:
+    """The prior of one named parameter set for one damper.
+
+    Parameters
+    ----------
+    paramset : str
+        A name from the file's ``[sets]`` (``theta1``, ``theta2``, ``theta3``, ``poly2``..``poly4``).
+    damper : Damper
+        Supplies nominal values (relative boxes) and ``ej_static``.
+    path : path-like, optional
+        A prior file; default the bundled ``priors/default.toml``.
+    """
+    doc, src = _read(path)
+    sets = parameter_sets(path)
+    if paramset not in sets:
+        raise InputError(f"{src}: parameter set {paramset!r} not in [sets] ({', '.join(sets)})")
+    names = list(sets[paramset])
+    for n in names:
+        if n not in PARAMETER_NAMES:
+            raise InputError(f"{src}: key 'sets.{paramset}': unknown parameter {n!r}")
+    table = doc.get("parameters", {})
+    errors = doc.get("model_error", {})
+    rows = []
+    for n in names:
+        if n not in table:
+            raise InputError(f"{src}: key 'parameters.{n}': missing (used by set {paramset!r})")
+        rows.append(_bounds(src, f"parameters.{n}", table[n], n, damper))
+    for n in _MODEL_ERROR:
+        if n not in errors:
+            raise InputError(f"{src}: key 'model_error.{n}': missing")
+        rows.append(_bounds(src, f"model_error.{n}", errors[n], n, damper))
+    log_scale, lo, hi = (np.array(c) for c in zip(*rows))
+    return Prior(paramset=paramset, names=tuple(names) + _MODEL_ERROR, log_scale=log_scale.astype(bool),
+                 lower=lo.astype(float), upper=hi.astype(float))
