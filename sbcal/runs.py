@@ -26,7 +26,8 @@ with warnings.catch_warnings():
 from ._io import atomic_path
 from .errors import InputError
 
-__all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions"]
+__all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
+           "loo_pointwise", "posterior_draws"]
 
 SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
 
@@ -156,3 +157,31 @@ def read_run(directory):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         return az.from_netcdf(str(Path(directory) / "posterior.nc")), s
+
+
+def loo_pointwise(log_lik) -> np.ndarray:
+    """PSIS-LOO pointwise ELPD of a log-likelihood matrix ``(n_draws, n_points)``: shape (n_points,)."""
+    ll = np.asarray(log_lik, float)
+    idata = az.from_dict(posterior={"_": np.zeros((1, ll.shape[0]))}, log_likelihood={"y": ll[None]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pareto-k warnings are reported by the callers that care
+        res = az.loo(idata, pointwise=True)
+    return np.asarray(res.loo_i)
+
+
+def posterior_draws(runs_dir, damper: str, paramset: str, parameter: str):
+    """Yield ``(test, amplitude, draws)`` for every finished run of a damper.
+
+    ``amplitude`` is the test's amplitude [mm p-p] when it is the same on every line, else None
+    (mixed-amplitude tests such as ``2-1``); ``draws`` are the flattened posterior draws.
+    """
+    root = Path(runs_dir) / damper
+    if not root.is_dir():
+        return
+    for d in sorted(p.parent for p in root.glob(f"*/{paramset}/summary.json")):
+        idata, _ = read_run(d)
+        if parameter not in idata.posterior:
+            continue
+        amp = np.asarray(idata.constant_data["amplitude_mm_pp"])
+        amplitude = float(amp[0]) if np.allclose(amp, amp[0]) else None
+        yield d.parent.name, amplitude, np.asarray(idata.posterior[parameter]).ravel()

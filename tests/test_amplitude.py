@@ -1,0 +1,73 @@
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from sbcal import InputError
+from sbcal.amplitude import TestPoint, fit_law, points_from_table
+from sbcal.cli import main
+
+AMPS = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 1.0, 2.0])
+
+
+def points(rng, k, n, sd, tau=0.0):
+    """Per-test posteriors of log EJ: centred on the truth plus posterior error, sd ``sd``."""
+    true = np.log(k) - n * np.log(AMPS) + tau * rng.standard_normal(AMPS.size)
+    m = true + sd * rng.standard_normal(AMPS.size)
+    return [TestPoint("d", f"{a:g}", float(a), float(mi), sd, float(np.exp(mi)), 0.0, 0.0) for a, mi in zip(AMPS, m)]
+
+
+def test_recovers_k_and_n_from_per_test_posteriors():
+    """90 % intervals of k and n contain the truth at (about) the nominal rate over repeated data sets."""
+    rng = np.random.default_rng(5)
+    trials = 16
+    hits = {"k": 0, "n": 0}
+    for t in range(trials):
+        k, n = float(rng.uniform(6, 14)), float(rng.uniform(0.2, 0.7))
+        fit = fit_law(points(rng, k, n, sd=0.05, tau=0.03), "powerlaw", seed=t, steps=1500)
+        s = fit.summary()
+        hits["k"] += s["k"][1] <= k <= s["k"][2]
+        hits["n"] += s["n"][1] <= n <= s["n"][2]
+    floor = binom.ppf(0.005, trials, 0.9)  # fail only below a 0.5 % lower tail
+    assert hits["k"] >= floor and hits["n"] >= floor, hits
+
+
+def test_intervals_widen_with_per_test_uncertainty():
+    rng = np.random.default_rng(11)
+    base = points(rng, 10.0, 0.5, sd=0.0)
+    widths = []
+    for sd in (0.02, 0.2):
+        pts = [TestPoint(p.damper, p.test, p.amplitude, p.mean_log, sd, p.median, 0, 0) for p in base]
+        s = fit_law(pts, "powerlaw", seed=3, steps=1500).summary()
+        widths.append(s["n"][2] - s["n"][1])
+    assert widths[1] > 3 * widths[0]
+
+
+def test_table_mode_recovers_known_exponent(tmp_path, capsys):
+    t = tmp_path / "t.csv"
+    ej = 12.5 * AMPS ** -0.37
+    t.write_text("amplitude_mm_pp,ej_nm2\n" + "".join(f"{a},{e:.6g}\n" for a, e in zip(AMPS, ej)))
+    out = tmp_path / "m.json"
+    assert main(["map", "--table", str(t), "--json", str(out)]) == 0
+    import json
+
+    d = json.loads(out.read_text())
+    assert d["powerlaw"]["n"][1] <= 0.37 <= d["powerlaw"]["n"][2]
+    assert abs(d["powerlaw"]["n"][0] - 0.37) < 0.005 and abs(d["powerlaw"]["k"][0] - 12.5) < 0.1
+    assert d["preferred"] in ("powerlaw", "saturating") and "criterion" in d
+
+
+@pytest.mark.parametrize("text, match", [
+    ("amplitude_mm_pp,ej\n0.1,3\n", "column 'ej_nm2': missing"),
+    ("amplitude_mm_pp,ej_nm2\n0.1,3\n0.2,abc\n", "line 3, column 'ej_nm2'"),
+    ("amplitude_mm_pp,ej_nm2\n-1,3\n", "line 2, column 'amplitude_mm_pp'"),
+])
+def test_table_errors(tmp_path, text, match):
+    p = tmp_path / "t.csv"
+    p.write_text(text)
+    with pytest.raises(InputError, match=match):
+        points_from_table(p)
+
+
+def test_map_needs_runs(tmp_path, capsys):
+    assert main(["map", "--runs", str(tmp_path)]) == 2
+    assert "no finished theta1 runs" in capsys.readouterr().err
