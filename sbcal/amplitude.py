@@ -43,6 +43,8 @@ class TestPoint:
     the median and 90 % interval in natural units (for tables and plots).
     """
 
+    __test__ = False  # a bench test's point, not a pytest class
+
     damper: str
     test: str
     amplitude: float

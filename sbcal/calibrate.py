@@ -8,17 +8,25 @@ import json
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
+from pathlib import Path
 
 from .bench import load_bench, noise_model, remove_outlier_runs
 from .damper import Damper
 from .ga import fit_ga
 from .likelihood import TestLikelihood
 from .priors import load_prior
-from .runs import run_dir, summarize, to_inference_data, versions, write_run
+from .runs import read_summary, run_dir, summarize, to_inference_data, versions, write_run
 from ._io import atomic_path
 from .sampler import SamplerConfig, sample
 
-__all__ = ["test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test"]
+__all__ = ["test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test", "is_up_to_date"]
+
+
+def _fingerprint(bench) -> str:
+    """sha256 of the bench file: a stored run is up to date only for the same data."""
+    import hashlib
+
+    return hashlib.sha256(Path(bench.source).read_bytes()).hexdigest()
 
 
 def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", prior_path=None,
@@ -66,7 +74,7 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     label = f"{damper.name}/{test}/{paramset}"
     result = sample(like, seed=seed, config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
-            "bench": bench.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
+            "bench": bench.source, "bench_sha256": _fingerprint(bench), "prior": like.prior.as_dict(), "sampler": asdict(config),
             "command": command, "damper_values": {k: v for k, v in asdict(damper).items()}}
     idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
                               seed=seed, meta=meta)
@@ -105,3 +113,15 @@ def calibrate_tests(damper: Damper, bench, tests, *, workers: int = 1, **kwargs)
     with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
         return dict(pool.map(_work, jobs))
 
+
+
+def is_up_to_date(out, damper: Damper, bench, test: str, paramset: str, seed: int,
+                  config: SamplerConfig = SamplerConfig()) -> bool:
+    """True when a finished run of this test exists for the same data, damper, seed and settings."""
+    s = read_summary(run_dir(out, damper.name, test, paramset))
+    if s is None:
+        return False
+    cfg = s.get("config", {})
+    return (s.get("seed") == seed and cfg.get("bench_sha256") == _fingerprint(bench)
+            and cfg.get("sampler") == asdict(config)
+            and cfg.get("damper_values") == {k: v for k, v in asdict(damper).items()})

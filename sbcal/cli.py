@@ -7,6 +7,7 @@ ends in one line on stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 import numpy as np
@@ -92,9 +93,256 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+# --- sample ------------------------------------------------------------------------------------
+
+def _add_sample(sub):
+    p = sub.add_parser("sample", help="posterior of EJ and beta per test (emcee), stored as ArviZ netCDF",
+                       description="Sample the posterior of one test (--test) or every test (--all) of a "
+                                   "damper and store runs/<damper>/<test>/<paramset>/posterior.nc + summary.json.")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--test", action="append", metavar="LABEL", help="test label (repeatable)")
+    which.add_argument("--all", action="store_true", help="every test of the damper in the bench file")
+    p.add_argument("--damper", default="damper1", help="bundled damper name or TOML path (default damper1)")
+    p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
+    p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
+    p.add_argument("--prior", metavar="PATH", help="prior file (default: the bundled priors/default.toml)")
+    p.add_argument("--method", choices=("bayes", "ga"), default="bayes",
+                   help="bayes: emcee posterior (default); ga: the thesis's point fit only (baseline)")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="tests in parallel processes")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--out", default="runs", metavar="DIR", help="run store (default runs/)")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    return p
+
+
+def _bench_for(args):
+    from .bench import default_bench_path, load_bench
+
+    return load_bench(args.bench if args.bench else default_bench_path())
+
+
+def _cmd_sample(args) -> int:
+    from .calibrate import calibrate_tests, point_fit_test
+    from .damper import resolve_damper
+
+    damper = resolve_damper(args.damper)
+    bench = _bench_for(args)
+    tests = bench.tests(damper.name) if args.all else args.test
+    for t in tests:
+        bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    if args.method == "ga":
+        for t in tests:
+            doc = point_fit_test(damper, bench, t, paramset=args.params, seed=args.seed, out=args.out,
+                                 prior_path=args.prior)
+            vals = ", ".join(f"{k}={v:.4g}" for k, v in doc["parameters"].items())
+            print(f"{damper.name} {t} {args.params} (GA point fit): {vals}; cost {doc['cost']:.4g}, "
+                  f"{doc['generations']} generations, {doc['wall_s']:.1f} s")
+        return 0
+    summaries = calibrate_tests(damper, bench, tests, workers=args.workers, paramset=args.params, seed=args.seed,
+                                out=args.out, prior_path=args.prior, progress=not args.quiet,
+                                command=" ".join(["sbcal"] + sys.argv[1:]))
+    for t, s in summaries.items():
+        p = s["parameters"]
+        flag = "" if s["converged"] else "  NOT CONVERGED"
+        print(f"{damper.name} {t} {args.params}: EJ {p['EJ']['median']:.3g} [{p['EJ']['q05']:.3g}, "
+              f"{p['EJ']['q95']:.3g}] N m^2, " + ", ".join(
+                  f"{n} {p[n]['median']:.3g} [{p[n]['q05']:.3g}, {p[n]['q95']:.3g}]"
+                  for n in p if n.startswith("beta")) + f", R-hat max {max(v['r_hat'] for v in p.values()):.3f}"
+              f", {s['wall_s']:.1f} s{flag}")
+    print(f"stored in {args.out}/{damper.name}/<test>/{args.params}/")
+    return 0
+
+
+# --- data --------------------------------------------------------------------------------------
+
+def _add_data(sub):
+    p = sub.add_parser("data", help="check bench recordings: runs, grid, amplitudes, CV, outlier runs",
+                       description="Validate a bench CSV and report per damper and test: runs, frequency grid, "
+                                   "amplitudes, the median coefficient of variation (thesis 2.5) at <= 15 Hz and "
+                                   "> 15 Hz before -> after removing outlier runs (Z-score on whole curves, 2.6).")
+    p.add_argument("--bench", metavar="PATH", help="bench CSV or CSV.gz (default: the bundled data)")
+    p.add_argument("--json", metavar="OUT", help="also write the summary as JSON")
+    p.add_argument("--z-threshold", type=float, default=None, metavar="Z",
+                   help="outlier run-score threshold (default 3)")
+    return p
+
+
+def _fmt_cv(cv: dict, name: str) -> str:
+    def pair(d):
+        return "/".join("-" if v is None else f"{v:.1f}" for v in d[name].values())
+    return f"{pair(cv['raw'])} -> {pair(cv['clean'])}"
+
+
+def _cmd_data(args) -> int:
+    import json
+
+    from ._io import atomic_path
+    from .bench import DEFAULT_Z_THRESHOLD, bench_summary, default_bench_path, load_bench
+
+    path = args.bench
+    if path is None:
+        path = default_bench_path()
+        if not path.is_file():
+            raise InputError(f"no bundled bench data ({path} is missing); pass --bench PATH")
+    z = DEFAULT_Z_THRESHOLD if args.z_threshold is None else args.z_threshold
+    bench = load_bench(path)
+    summary = bench_summary(bench, z)
+    if args.json:
+        with atomic_path(args.json, ".json") as tmp:
+            tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    n_tests = sum(len(t) for t in summary.values())
+    print(f"{bench.source}: {len(bench.frame)} rows; dampers: {len(summary)}, tests: {n_tests}; "
+          f"outlier runs: score > {z:g}; CV: median % at f<=15/f>15 Hz, all runs -> kept runs")
+    for damper, tests in summary.items():
+        print(damper)
+        print(f"  {'test':<12}{'runs':>5}  {'removed':<12}{'lines':>5}  {'f [Hz]':<11}{'amp [mm p-p]':<14}"
+              f"{'CV |F|':<22}CV phase")
+        for label, t in tests.items():
+            removed = ",".join(map(str, t["removed_runs"])) or "-"
+            amps = ",".join(f"{a:g}" for a in t["amplitude_mm_pp"])
+            grid = f"{t['frequency_min_hz']:g}-{t['frequency_max_hz']:g}"
+            print(f"  {label:<12}{t['runs']:>5}  {removed:<12}{t['n_frequencies']:>5}  {grid:<11}{amps:<14}"
+                  f"{_fmt_cv(t['cv_median_pct'], 'magnitude'):<22}{_fmt_cv(t['cv_median_pct'], 'phase')}")
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
+# --- map ---------------------------------------------------------------------------------------
+
+def _add_map(sub):
+    p = sub.add_parser("map", help="EJ and beta versus amplitude: power law and saturating law with intervals",
+                       description="Fit EJ(A) = k (A/1mm)^-n and EJ(A) = EJ_inf + c A^-n to the stored per-test "
+                                   "posteriors (errors in variables), and the loss factor's trend.")
+    p.add_argument("--damper", default="damper1", help="damper whose map --json holds (default damper1)")
+    p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
+    p.add_argument("--params", default="theta1", metavar="SET", help="parameter set of the runs (default theta1)")
+    p.add_argument("--table", metavar="CSV", help="fit a plain table (amplitude_mm_pp, ej_nm2[, ej_sd]) instead")
+    p.add_argument("--include-oiled", action="store_true", help="keep oiled tests in the fit")
+    p.add_argument("--json", metavar="OUT", help="write the fit as JSON")
+    p.add_argument("--plot", metavar="OUT.png", help="figure: EJ and beta versus amplitude, every damper in the run store")
+    p.add_argument("--seed", type=int, default=0)
+    return p
+
+
+def _cmd_map(args) -> int:
+    import json
+
+    from ._io import atomic_path
+    from .amplitude import amplitude_map, map_dampers, points_from_table
+    from .damper import resolve_damper
+
+    if args.table:
+        doc, _ = amplitude_map(points_from_table(args.table), seed=args.seed)
+        docs = {"table": doc}
+        key = "table"
+    else:
+        docs = map_dampers(args.runs, args.params, seed=args.seed, include_oiled=args.include_oiled,
+                           ej_static=lambda name: resolve_damper(name).ej_static if name.startswith("damper") else None)
+        if args.damper not in docs:
+            have = ", ".join(docs) or "none"
+            raise InputError(f"{args.runs}: no finished {args.params} runs of {args.damper!r} at 3+ amplitudes "
+                             f"(dampers with enough runs: {have}); run 'sbcal sample --all --damper {args.damper}' first")
+        key = args.damper
+    for name, doc in docs.items():
+        pl, sat = doc["powerlaw"], doc["saturating"]
+        print(f"{name}: EJ = k (A/1mm)^-n with k {pl['k'][0]:.3g} [{pl['k'][1]:.3g}, {pl['k'][2]:.3g}] N m^2, "
+              f"n {pl['n'][0]:.3f} [{pl['n'][1]:.3f}, {pl['n'][2]:.3f}]; saturating EJ_inf "
+              f"{sat['EJ_inf'][0]:.3g} [{sat['EJ_inf'][1]:.3g}, {sat['EJ_inf'][2]:.3g}]"
+              + (f", tau = EJ_static/EJ_inf {sat['reduction_factor'][0]:.3g} "
+                 f"[{sat['reduction_factor'][1]:.3g}, {sat['reduction_factor'][2]:.3g}]" if "reduction_factor" in sat else "")
+              + f"; preferred: {doc['preferred']}")
+        if doc.get("beta"):
+            b = doc["beta"]["powerlaw"]
+            print(f"{name}: beta = k (A/1mm)^-n with k {b['k'][0]:.3g} [{b['k'][1]:.3g}, {b['k'][2]:.3g}], "
+                  f"n {b['n'][0]:.3f} [{b['n'][1]:.3f}, {b['n'][2]:.3f}]")
+    if args.json:
+        def public(doc):  # the fitted-law objects are for plots, not JSON
+            return {k: v for k, v in doc.items() if k != "_fits"}
+
+        out = public(docs[key])
+        out["others"] = {k: public(v) for k, v in docs.items() if k != key}
+        with atomic_path(args.json, ".json") as tmp:
+            tmp.write_text(json.dumps(out, indent=2) + "\n")
+    if args.plot:
+        from .amplitude import plot_map
+
+        plot_map(docs, args.plot)
+    return 0
+
+
+# --- report and run ----------------------------------------------------------------------------
+
+def _add_report(sub):
+    p = sub.add_parser("report", help="write an HTML summary of the stored runs",
+                       description="Write a self-contained static HTML report (index.html + figures/).")
+    p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
+    p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
+    p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the amplitude-map fits")
+    return p
+
+
+def _cmd_report(args) -> int:
+    from .report import build_report
+
+    index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed,
+                         command=" ".join(["sbcal"] + sys.argv[1:]), progress=lambda t: print(t, file=sys.stderr))
+    print(f"wrote {index}")
+    return 0
+
+
+def _add_run(sub):
+    p = sub.add_parser("run", help="the whole job: sample every test of every damper, map, report",
+                       description="Sample every test of the chosen dampers (skipping runs that are up to date), "
+                                   "fit the amplitude map and write the HTML report.")
+    p.add_argument("--damper", action="append", metavar="NAME|PATH",
+                   help="damper (repeatable; default: every damper of the bench file that is bundled)")
+    p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
+    p.add_argument("--params", default="theta1", metavar="SET")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
+                   help="tests in parallel processes (default: 2 or the cores there are)")
+    p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
+    p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
+    return p
+
+
+def _cmd_run(args) -> int:
+    from .calibrate import calibrate_tests, is_up_to_date
+    from .damper import bundled_dampers, resolve_damper
+    from .report import build_report
+
+    bench = _bench_for(args)
+    names = args.damper or [d for d in bench.dampers() if d in bundled_dampers()]
+    if not names:
+        raise InputError(f"{bench.source}: none of its dampers ({', '.join(bench.dampers())}) is bundled; "
+                         "name a description with --damper PATH")
+    command = " ".join(["sbcal"] + sys.argv[1:])
+    for name in names:
+        damper = resolve_damper(name)
+        tests = bench.tests(damper.name)
+        todo = [t for t in tests if not is_up_to_date(args.runs, damper, bench, t, args.params, args.seed)]
+        print(f"{damper.name}: {len(tests)} tests, {len(tests) - len(todo)} up to date, sampling {len(todo)}",
+              file=sys.stderr)
+        calibrate_tests(damper, bench, todo, workers=args.workers, paramset=args.params, seed=args.seed,
+                        out=args.runs, command=command)
+    index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed, command=command,
+                         progress=lambda t: print(t, file=sys.stderr))
+    print(f"wrote {index}")
+    return 0
+
+
 # One line per subcommand; each helper pair lives above, in the order of this table.
 _COMMANDS = {
     "simulate": (_add_simulate, _cmd_simulate),
+    "sample": (_add_sample, _cmd_sample),
+    "map": (_add_map, _cmd_map),
+    "report": (_add_report, _cmd_report),
+    "run": (_add_run, _cmd_run),
+    "data": (_add_data, _cmd_data),
 }
 
 

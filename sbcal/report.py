@@ -1,0 +1,281 @@
+"""``sbcal report``: a self-contained static HTML summary of a run store.
+
+One ``index.html`` with its PNG figures beside it (``figures/``); opens from disk with no server
+and no network. Per damper: data quality, then per test the fit (runs, mean, posterior-predictive
+band), dissipated power, the parameter table with convergence diagnostics, corner and trace plots;
+across tests the amplitude map. Missing pieces (a test not sampled yet) are shown as missing.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._io import atomic_path
+from .errors import InputError
+
+__all__ = ["build_report"]
+
+_FIG_DPI = 90
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> str:
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, dpi=_FIG_DPI, format="png")
+    _plt().close(fig)
+    return path.name
+
+
+@dataclass
+class _Test:
+    label: str
+    paramset: str
+    summary: dict | None = None
+    figures: dict = field(default_factory=dict)
+    rows: list = field(default_factory=list)
+    missing: str = ""
+
+
+def _fit_figure(idata, path: Path, title: str) -> str:
+    """Measured runs, their mean, the model's 90 % band and the predictive 90 % band for a new run."""
+    plt = _plt()
+    f = np.asarray(idata.constant_data["freq_hz"])
+    obs_m = np.exp(np.asarray(idata.observed_data["logmag"]))
+    obs_p = np.degrees(np.asarray(idata.observed_data["phase"]))
+    pp = idata.posterior_predictive
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6.2), sharex=True)
+    for ax, obs, new, model, unit in (
+        (axes[0], obs_m, np.exp(np.asarray(pp["logmag"])), np.exp(np.asarray(pp["model_logmag"])), "|F/X| [N/m]"),
+        (axes[1], obs_p, np.degrees(np.asarray(pp["phase"])), np.degrees(np.asarray(pp["model_phase"])), "phase [deg]"),
+    ):
+        new = new.reshape(-1, f.size)
+        model = model.reshape(-1, f.size)
+        lo, hi = np.quantile(new, [0.05, 0.95], axis=0)
+        ax.fill_between(f, lo, hi, color="C1", alpha=0.25, label="posterior predictive 90 % (a new run)")
+        mlo, mmid, mhi = np.quantile(model, [0.05, 0.5, 0.95], axis=0)
+        ax.fill_between(f, mlo, mhi, color="C3", alpha=0.35, label="model curve 90 %")
+        ax.plot(f, mmid, color="C3", lw=1.2, label="model curve, median")
+        for i, run in enumerate(obs):
+            ax.plot(f, run, color="0.55", lw=0.5, alpha=0.6, label="measured runs" if i == 0 else None)
+        ax.plot(f, np.nanmean(obs, axis=0), "k.", ms=4, label="mean of runs")
+        ax.set_ylabel(unit)
+        ax.grid(alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[0].set_title(title)
+    axes[1].set_xlabel("frequency [Hz]")
+    axes[0].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _power_figure(idata, path: Path, title: str) -> str:
+    """Dissipated power P = 0.5 omega Im(f_uu) X0^2 of the model curves, with its 90 % band."""
+    plt = _plt()
+    f = np.asarray(idata.constant_data["freq_hz"])
+    x0 = np.asarray(idata.constant_data["amplitude_mm_pp"]) / 2 * 1e-3  # peak base amplitude [m]
+    pp = idata.posterior_predictive
+    im = (np.exp(np.asarray(pp["model_logmag"])) * np.sin(np.asarray(pp["model_phase"]))).reshape(-1, f.size)
+    p = 0.5 * 2 * np.pi * f * im * x0**2
+    obs = np.exp(np.asarray(idata.observed_data["logmag"])) * np.sin(np.asarray(idata.observed_data["phase"]))
+    pobs = np.nanmean(0.5 * 2 * np.pi * f * obs * x0**2, axis=0)
+    lo, mid, hi = np.quantile(p, [0.05, 0.5, 0.95], axis=0)
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    ax.fill_between(f, lo, hi, color="C2", alpha=0.3, label="model, 90 %")
+    ax.plot(f, mid, color="C2", label="model, median")
+    ax.plot(f, pobs, "k.", ms=4, label="measured (mean of runs)")
+    ax.set(xlabel="frequency [Hz]", ylabel="dissipated power [W]", yscale="log", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _corner_figure(idata, names, path: Path) -> str:
+    import corner
+
+    x = np.stack([np.asarray(idata.posterior[n]).ravel() for n in names], axis=1)
+    fig = corner.corner(x, labels=list(names), quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g",
+                        title_kwargs={"fontsize": 8}, label_kwargs={"fontsize": 8})
+    fig.set_size_inches(1.5 * len(names) + 1, 1.5 * len(names) + 1)
+    return _save(fig, path)
+
+
+def _trace_figure(idata, names, path: Path) -> str:
+    """Draws per ensemble (chain): well-mixed ensembles overlap."""
+    plt = _plt()
+    fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.2 * len(names) + 0.5), sharex=True)
+    for ax, n in zip(np.atleast_1d(axes), names):
+        v = np.asarray(idata.posterior[n])
+        for c in range(v.shape[0]):
+            ax.plot(v[c], lw=0.3, alpha=0.7)
+        ax.set_ylabel(n, fontsize=8)
+    np.atleast_1d(axes)[-1].set_xlabel("draw (walkers' thinned draws, one colour per ensemble)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _cv_figure(bench, damper: str, tests, path: Path) -> str:
+    from .bench import quality_table
+
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    for t in tests:
+        q = quality_table(bench.test(damper, t))
+        axes[0].plot(q.frequency_hz, q.magnitude_cv, lw=1, label=t)
+        axes[1].plot(q.frequency_hz, q.phase_cv, lw=1, label=t)
+    axes[0].set(xlabel="frequency [Hz]", ylabel="CV of |F/X| [%]", title="Run-to-run spread, magnitude")
+    axes[1].set(xlabel="frequency [Hz]", ylabel="CV of phase [%]", title="Run-to-run spread, phase")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _fmt(v, digits=4):
+    return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+
+def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", seed: int = 0,
+                 command: str = "", progress=None) -> Path:
+    """Write ``<out_dir>/index.html`` (and ``figures/``) from a run store; returns its path.
+
+    Parameters
+    ----------
+    runs_dir : path-like
+        The run store (``sbcal sample --out``).
+    out_dir : path-like
+    paramset : str
+        Parameter set whose runs are reported.
+    seed : int
+        Seed of the amplitude-map fits.
+    command : str
+        Command line, for provenance.
+    progress : callable, optional
+        Called with a short text per step.
+    """
+    from jinja2 import Environment, PackageLoader, select_autoescape
+
+    from .amplitude import map_dampers, plot_map
+    from .bench import THESIS_TESTS, load_bench
+    from .damper import bundled_dampers, resolve_damper
+    from .runs import read_run, run_dir
+
+    say = progress or (lambda text: None)
+    runs = Path(runs_dir)
+    if not runs.is_dir():
+        raise InputError(f"{runs}: no such run store (run 'sbcal sample' first)")
+    out = Path(out_dir)
+    figs = out / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    dampers = []
+    for dname in sorted(p.name for p in runs.iterdir() if p.is_dir()):
+        say(f"report: {dname}")
+        tests_dirs = sorted({p.parent.name for p in (runs / dname).glob(f"*/{paramset}")})
+        bench, bench_note, expected = None, "", []
+        tests = []
+        for t in tests_dirs:
+            d = run_dir(runs, dname, t, paramset)
+            item = _Test(label=t, paramset=paramset)
+            try:
+                idata, s = read_run(d)
+            except InputError:
+                item.missing = "not sampled yet (no finished run)"
+                tests.append(item)
+                continue
+            item.summary = s
+            if bench is None and s.get("config", {}).get("bench"):
+                try:
+                    bench = load_bench(s["config"]["bench"])
+                    expected = bench.tests(dname)
+                except InputError as e:
+                    bench_note = f"bench data not available: {e}"
+            names = list(s["parameters"])
+            model_names = [n for n in names if not n.startswith("sigma_")]
+            stem = f"{dname}_{t}".replace("/", "_")
+            item.figures = {
+                "fit": _fit_figure(idata, figs / f"{stem}_fit.png", f"{dname} {t}: measured runs and posterior"),
+                "power": _power_figure(idata, figs / f"{stem}_power.png", f"{dname} {t}: power dissipated"),
+                "corner": _corner_figure(idata, model_names, figs / f"{stem}_corner.png"),
+                "trace": _trace_figure(idata, names, figs / f"{stem}_trace.png"),
+            }
+            for n, p in s["parameters"].items():
+                flag = (p["r_hat"] > 1.01) or (p["ess_bulk"] < 400) or not s.get("converged", True)
+                item.rows.append({"name": n, "median": _fmt(p["median"]), "q05": _fmt(p["q05"]), "q95": _fmt(p["q95"]),
+                                  "r_hat": _fmt(p["r_hat"], 4), "ess": _fmt(p["ess_bulk"], 4), "tau": _fmt(p["tau"], 3),
+                                  "flag": flag})
+            tests.append(item)
+        order = {t: i for i, t in enumerate(THESIS_TESTS)}
+        have = {t.label for t in tests}
+        for t in expected:
+            if t not in have:
+                tests.append(_Test(label=t, paramset=paramset, missing="not sampled yet"))
+        tests.sort(key=lambda t: (order.get(t.label, len(order)), t.label))
+        quality = []
+        cv_fig = None
+        if bench is not None:
+            from .bench import remove_outlier_runs
+
+            for t in expected:
+                td = bench.test(dname, t)
+                c = remove_outlier_runs(td)
+                quality.append({"test": t, "runs": len(td.runs), "removed": ", ".join(map(str, c.removed_runs)) or "none",
+                                "amplitudes": ", ".join(f"{a:g}" for a in np.unique(td.amplitude_mm_pp)),
+                                "lines": len(td.freq_hz)})
+            cv_fig = _cv_figure(bench, dname, expected, figs / f"{dname}_cv.png")
+        dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note})
+
+    say("report: amplitude map")
+    known = set(bundled_dampers())
+    try:
+        docs = map_dampers(runs, paramset, seed=seed,
+                           ej_static=lambda n: resolve_damper(n).ej_static if n in known else None)
+    except InputError as e:
+        docs, map_note = {}, str(e)
+    else:
+        map_note = "" if docs else "fewer than 3 amplitudes sampled for every damper: no map yet"
+    map_fig = None
+    map_rows = []
+    if docs:
+        map_fig = "amplitude_map.png"
+        plot_map(docs, figs / map_fig)
+        for name, doc in docs.items():
+            pl, sat = doc["powerlaw"], doc["saturating"]
+            row = {"damper": name, "k": pl["k"], "n": pl["n"], "ej_inf": sat["EJ_inf"],
+                   "tau": sat.get("reduction_factor"), "preferred": doc["preferred"], "criterion": doc["criterion"]}
+            if doc.get("beta"):
+                row["beta_k"], row["beta_n"] = doc["beta"]["powerlaw"]["k"], doc["beta"]["powerlaw"]["n"]
+            map_rows.append(row)
+
+    provenance = []
+    for d in dampers:
+        for t in d["tests"]:
+            if t.summary:
+                cfg = t.summary.get("config", {})
+                provenance.append({"run": f"{d['name']} {t.label} {t.paramset}", "seed": t.summary.get("seed"),
+                                   "wall_s": _fmt(t.summary.get("wall_s"), 3),
+                                   "command": cfg.get("command", ""),
+                                   "versions": ", ".join(f"{k} {v}" for k, v in t.summary.get("versions", {}).items())})
+    env = Environment(loader=PackageLoader("sbcal", "templates"), autoescape=select_autoescape(["html"]))
+    page = env.get_template("report.html").render(
+        dampers=dampers, map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
+        created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
+        runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
+    )
+    index = out / "index.html"
+    with atomic_path(index, ".html") as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return index
+
