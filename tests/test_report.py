@@ -1,0 +1,100 @@
+"""The report renders from a small run store: sections, tables, every referenced image exists."""
+
+import re
+from html.parser import HTMLParser
+
+import numpy as np
+import pytest
+
+from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
+from sbcal.bench import curves_to_frame, load_bench, write_bench
+from sbcal.calibrate import calibrate_test
+from sbcal.cli import main
+from sbcal.damper import resolve_damper
+from sbcal.sampler import SamplerConfig
+
+FAST = SamplerConfig(nwalkers=16, n_ensembles=2, tau_factor=20, max_draws=200, ga_population=30, ga_generations=60)
+
+
+class _Refs(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.imgs, self.headings, self.tables = [], [], 0
+        self._h = None
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "img":
+            self.imgs.append(dict(attrs)["src"])
+        if tag == "table":
+            self.tables += 1
+        if tag in ("h2", "h3"):
+            self._h = ""
+
+    def handle_data(self, data):
+        if self._h is not None:
+            self._h += data
+
+    def handle_endtag(self, tag):
+        if tag in ("h2", "h3") and self._h is not None:
+            self.headings.append(self._h.strip())
+            self._h = None
+
+
+@pytest.fixture(scope="module")
+def run_store(tmp_path_factory):
+    """damper1 at three amplitudes (EJ falling with amplitude), sampled fast; one test left unsampled."""
+    tmp = tmp_path_factory.mktemp("store")
+    d = resolve_damper("damper1")
+    rng = np.random.default_rng(77)
+    frames = []
+    for amp, ej, beta in ((0.2, 20.0, 0.25), (0.5, 12.0, 0.3), (1.0, 9.0, 0.33), (2.0, 7.0, 0.35)):
+        fuu = dynamic_stiffness(d, F, EJ=ej, beta=beta)
+        noisy = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
+        frames.append(curves_to_frame("damper1", f"{amp:g}-{amp:g}", F, amp, noisy))
+    import pandas as pd
+
+    path = tmp / "bench.csv"
+    write_bench(pd.concat(frames), path)
+    bench = load_bench(path)
+    runs = tmp / "runs"
+    for t in ("0.2-0.2", "0.5-0.5", "1-1"):
+        calibrate_test(d, bench, t, seed=3, out=runs, config=FAST, progress=False)
+    return runs
+
+
+def test_report_structure(run_store, tmp_path, capsys):
+    out = tmp_path / "rep"
+    assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    p = _Refs()
+    p.feed(page)
+    assert "How to read this page" in p.headings
+    assert "damper1" in p.headings and "Provenance" in p.headings
+    assert any(h.startswith("Amplitude map") for h in p.headings)
+    for t in ("0.2-0.2", "0.5-0.5", "1-1", "2-2"):
+        assert f"damper1 — test {t}" in p.headings
+    # the unsampled test is shown as missing, not as an error
+    assert re.search(r"2-2: not sampled yet", page)
+    assert p.tables >= 5  # quality, three parameter tables, map, provenance
+    assert len(p.imgs) >= 3 * 4 + 2
+    for src in p.imgs:
+        assert not src.startswith(("http:", "https:", "/")), src  # self-contained, relative
+        assert (out / src).is_file() and (out / src).stat().st_size > 1000, src
+    assert "EJ" in page and "R-hat" in page
+
+
+def test_map_on_stored_runs(run_store, tmp_path):
+    import json
+
+    out = tmp_path / "m.json"
+    assert main(["map", "--runs", str(run_store), "--json", str(out), "--plot", str(tmp_path / "m.png")]) == 0
+    d = json.loads(out.read_text())
+    # EJ falls with amplitude: a positive exponent, interval away from 0
+    assert d["powerlaw"]["n"][1] > 0
+    assert {t["test"] for t in d["tests"]} == {"0.2-0.2", "0.5-0.5", "1-1"}
+    assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+def test_report_on_missing_store(tmp_path, capsys):
+    assert main(["report", "--runs", str(tmp_path / "none"), "-o", str(tmp_path / "r")]) == 2
+    assert "no such run store" in capsys.readouterr().err
