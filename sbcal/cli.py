@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 
 import numpy as np
@@ -116,9 +117,15 @@ def _add_sample(sub):
 
 
 def _bench_for(args):
+    """The ``--bench`` file, or the bundled data."""
     from .bench import default_bench_path, load_bench
 
-    return load_bench(args.bench if args.bench else default_bench_path())
+    if args.bench:
+        return load_bench(args.bench)
+    path = default_bench_path()
+    if not path.is_file():
+        raise InputError(f"no bundled bench data ({path} is missing); pass --bench PATH")
+    return load_bench(path)
 
 
 def _cmd_sample(args) -> int:
@@ -142,7 +149,7 @@ def _cmd_sample(args) -> int:
         return 0
     summaries = calibrate_tests(damper, bench, tests, workers=args.workers, paramset=args.params, seed=args.seed,
                                 out=args.out, prior_path=args.prior, progress=not args.quiet,
-                                command=" ".join(["sbcal"] + sys.argv[1:]))
+                                command=args.command_line)
     for t, s in summaries.items():
         p = s["parameters"]
         flag = "" if s["converged"] else "  NOT CONVERGED"
@@ -179,15 +186,10 @@ def _cmd_data(args) -> int:
     import json
 
     from ._io import atomic_path
-    from .bench import DEFAULT_Z_THRESHOLD, bench_summary, default_bench_path, load_bench
+    from .bench import DEFAULT_Z_THRESHOLD, bench_summary
 
-    path = args.bench
-    if path is None:
-        path = default_bench_path()
-        if not path.is_file():
-            raise InputError(f"no bundled bench data ({path} is missing); pass --bench PATH")
     z = DEFAULT_Z_THRESHOLD if args.z_threshold is None else args.z_threshold
-    bench = load_bench(path)
+    bench = _bench_for(args)
     summary = bench_summary(bench, z)
     if args.json:
         with atomic_path(args.json, ".json") as tmp:
@@ -289,7 +291,7 @@ def _cmd_report(args) -> int:
     from .report import build_report
 
     index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed,
-                         command=" ".join(["sbcal"] + sys.argv[1:]), progress=lambda t: print(t, file=sys.stderr))
+                         command=args.command_line, progress=lambda t: print(t, file=sys.stderr))
     print(f"wrote {index}")
     return 0
 
@@ -320,7 +322,7 @@ def _cmd_run(args) -> int:
     if not names:
         raise InputError(f"{bench.source}: none of its dampers ({', '.join(bench.dampers())}) is bundled; "
                          "name a description with --damper PATH")
-    command = " ".join(["sbcal"] + sys.argv[1:])
+    command = args.command_line
     for name in names:
         damper = resolve_damper(name)
         tests = bench.tests(damper.name)
@@ -335,6 +337,58 @@ def _cmd_run(args) -> int:
     return 0
 
 
+# --- bench -------------------------------------------------------------------------------------
+
+def _add_bench(sub):
+    p = sub.add_parser("bench", help="record the virtual shaker bench (concealed physics) as a bench CSV",
+                       description="Run the virtual bench (docs/virtual_bench.md): repeated runs of each test from "
+                                   "physics richer than the calibration model, with run-to-run scatter, "
+                                   "measurement noise and outlier runs, written as a bench CSV.")
+    p.add_argument("--damper", required=True, help="bundled damper name or TOML path")
+    p.add_argument("--effect", action="append", metavar="NAME=VALUE",
+                   help="concealed effect (repeatable): strand_slip, fixture_mass, sensor_delay, viscous_damping, "
+                        "asymmetric_damping, base_rocking, frequency_dependent_stiffness, fixture_resonance")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="model parameter (repeatable; default EJ = 0.1 ej_static, beta = 0.3)")
+    p.add_argument("--tests", nargs="+", metavar="LABEL",
+                   help="test labels A-B (default: the thesis's plan 0.1-0.1 0.2-0.2 0.3-0.3 0.4-0.4 0.5-0.5 "
+                        "1-1 2-2 2-1)")
+    p.add_argument("--runs", type=int, default=24, metavar="N", help="runs per test (default 24)")
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
+    p.add_argument("--ideal", action="store_true", help="no run-to-run scatter, noise or outliers")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    return p
+
+
+def _cmd_bench(args) -> int:
+    from .bench import write_bench
+    from .damper import resolve_damper
+    from .virtual_bench import DEFAULT_TESTS, BenchConfig, parse_effect, record
+
+    damper = resolve_damper(args.damper)
+    params = _parse_set(args.set)
+    effects = {}
+    for spec in args.effect or ():
+        try:
+            name, value = parse_effect(spec)
+        except InputError as e:
+            raise InputError(f"--{e}") from None
+        if name in effects:
+            raise InputError(f"--effect {spec!r}: {name} is given twice")
+        effects[name] = value
+    if args.runs < 1:
+        raise InputError(f"--runs {args.runs}: must be >= 1")
+    if args.seed < 0:
+        raise InputError(f"--seed {args.seed}: must be >= 0")
+    config = BenchConfig(params=params, effects=effects, runs=args.runs)
+    tests = args.tests or DEFAULT_TESTS
+    frame = record(damper, config.ideal() if args.ideal else config, tests, rng=np.random.default_rng(args.seed))
+    write_bench(frame, args.output)
+    print(f"wrote {args.output}: {damper.name}, {len(tests)} tests x {args.runs} runs, "
+          f"effects: {', '.join(effects) or 'none'}")
+    return 0
+
+
 # One line per subcommand; each helper pair lives above, in the order of this table.
 _COMMANDS = {
     "simulate": (_add_simulate, _cmd_simulate),
@@ -343,6 +397,7 @@ _COMMANDS = {
     "report": (_add_report, _cmd_report),
     "run": (_add_run, _cmd_run),
     "data": (_add_data, _cmd_data),
+    "bench": (_add_bench, _cmd_bench),
 }
 
 
@@ -359,7 +414,9 @@ def main(argv=None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
     parser = build_parser()
     try:
+        argv = sys.argv[1:] if argv is None else list(argv)
         args = parser.parse_args(argv)
+        args.command_line = " ".join(["sbcal"] + [shlex.quote(a) for a in argv])  # provenance
         if args.command is None:
             parser.print_help()
             return 2
@@ -370,6 +427,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("sbcal: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into head & co.
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":
