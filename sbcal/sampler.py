@@ -78,6 +78,7 @@ class SampleResult:
     converged : bool
         Every ensemble reached ``tau_factor`` autocorrelation times.
     init : PointFit
+        The thesis-cost point fit (reported as the baseline; the chains start from a likelihood fit).
     wall_s : float
     config : SamplerConfig
     """
@@ -100,7 +101,7 @@ class SampleResult:
 
 
 def _mode(like: TestLikelihood, fit: PointFit) -> np.ndarray:
-    """Posterior mode in z, started from the point fit (model-error scales from its residuals)."""
+    """Posterior mode in z, started from a point fit (model-error scales from its residuals)."""
     prior = like.prior
     x = np.empty(prior.ndim)
     x[[prior.names.index(n) for n in prior.model_names]] = fit.x
@@ -183,10 +184,12 @@ def sample(like: TestLikelihood, *, seed: int, config: SamplerConfig = SamplerCo
     nwalkers += nwalkers % 2
     show = _Progress(progress or "", progress is not None)
     seqs = np.random.SeedSequence(seed).spawn(config.n_ensembles + 1)
-    show("point fit (differential evolution)")
-    fit = fit_ga(like, seed=np.random.default_rng(seqs[0]), population=config.ga_population,
-                 generations=config.ga_generations)
-    z0 = _mode(like, fit)
+    show("point fits (differential evolution)")
+    ga_rng = np.random.default_rng(seqs[0])
+    fit = fit_ga(like, seed=ga_rng, population=config.ga_population, generations=config.ga_generations)
+    start = fit_ga(like, seed=ga_rng, population=config.ga_population, generations=config.ga_generations,
+                   cost="likelihood")
+    z0 = _mode(like, start)
     moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     xs, lps, acc, taus, steps, burns, thins = [], [], [], [], [], [], []
     converged = True
