@@ -1,0 +1,85 @@
+"""Stored runs: ArviZ opens them, summary.json has the contract keys, the same seed gives the same numbers."""
+
+import json
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
+from sbcal.bench import curves_to_frame, load_bench, write_bench
+from sbcal.calibrate import calibrate_test, is_up_to_date
+from sbcal.cli import main
+from sbcal.damper import resolve_damper
+from sbcal.sampler import SamplerConfig
+
+FAST = SamplerConfig(nwalkers=16, n_ensembles=2, tau_factor=20, max_draws=200, ga_population=30, ga_generations=60)
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("b")
+    d = resolve_damper("damper1")
+    rng = np.random.default_rng(123)
+    fuu = dynamic_stiffness(d, F, EJ=10.0, beta=0.3)
+    noisy = fuu * np.exp(0.02 * rng.standard_normal((5, F.size)) + 0.01j * rng.standard_normal((5, F.size)))
+    path = tmp / "bench.csv"
+    write_bench(pd.concat([curves_to_frame("damper1", "0.5-0.5", F, 0.5, noisy)]), path)
+    return load_bench(path)
+
+
+def test_stored_run_opens_in_arviz(bench, tmp_path):
+    import arviz as az
+
+    d = resolve_damper("damper1")
+    s = calibrate_test(d, bench, "0.5-0.5", seed=5, out=tmp_path, config=FAST, progress=False)
+    path = tmp_path / "damper1" / "0.5-0.5" / "theta1"
+    assert sorted(p.name for p in path.iterdir()) == ["posterior.nc", "summary.json"]  # no temporary files left
+    on_disk = json.loads((path / "summary.json").read_text())
+    assert on_disk == json.loads(json.dumps(s))
+    for k in ("acceptance", "wall_s", "seed"):
+        assert k in on_disk
+    for p in ("EJ", "beta"):
+        assert set(on_disk["parameters"][p]) >= {"median", "q05", "q95", "r_hat", "ess_bulk", "tau"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        idata = az.from_netcdf(path / "posterior.nc")
+        table = az.summary(idata, var_names=["EJ", "beta"])
+    assert set(idata.groups()) >= {"posterior", "sample_stats", "log_likelihood", "posterior_predictive",
+                                   "observed_data", "constant_data"}
+    assert table.loc["EJ", "r_hat"] < 1.05
+    assert idata.log_likelihood["runs"].shape[-1] == 5
+    assert idata.observed_data["logmag"].shape == (5, F.size)
+    cfg = json.loads(idata.posterior.attrs["sbcal_config"])
+    assert cfg["test"] == "0.5-0.5" and idata.posterior.attrs["seed"] == 5
+    assert "emcee" in json.loads(idata.posterior.attrs["versions"])
+    assert abs(on_disk["parameters"]["EJ"]["median"] - 10.0) < 0.5
+    assert is_up_to_date(tmp_path, d, bench, "0.5-0.5", "theta1", 5, FAST)
+    assert not is_up_to_date(tmp_path, d, bench, "0.5-0.5", "theta1", 6, FAST)
+
+
+def test_same_seed_same_numbers(bench, tmp_path):
+    d = resolve_damper("damper1")
+    a = calibrate_test(d, bench, "0.5-0.5", seed=9, out=tmp_path / "a", config=FAST, progress=False)
+    b = calibrate_test(d, bench, "0.5-0.5", seed=9, out=tmp_path / "b", config=FAST, progress=False)
+    assert a["parameters"] == b["parameters"]
+    c = calibrate_test(d, bench, "0.5-0.5", seed=10, out=tmp_path / "c", config=FAST, progress=False)
+    assert c["parameters"]["EJ"]["median"] != a["parameters"]["EJ"]["median"]
+
+
+def test_sample_cli_errors(bench, tmp_path, capsys):
+    assert main(["sample", "--test", "9-9", "--bench", bench.source, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "9-9" in err and err.count("\n") == 1
+    assert main(["sample", "--test", "0.5-0.5", "--params", "theta9", "--bench", bench.source,
+                 "--out", str(tmp_path)]) == 2
+    assert "theta9" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_ga_method_writes_point_fit(bench, tmp_path, capsys):
+    assert main(["sample", "--test", "0.5-0.5", "--method", "ga", "--bench", bench.source, "--out", str(tmp_path),
+                 "--seed", "2"]) == 0
+    doc = json.loads((tmp_path / "damper1" / "0.5-0.5" / "theta1" / "ga.json").read_text())
+    assert abs(doc["parameters"]["EJ"] - 10.0) < 1.0 and doc["seed"] == 2
