@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from .bench import load_bench, noise_model, remove_outlier_runs
@@ -109,6 +109,8 @@ def calibrate_tests(damper: Damper, bench, tests, *, workers: int = 1, **kwargs)
     """:func:`calibrate_test` for several tests, in ``workers`` processes; ``{test: summary}``."""
     if workers <= 1 or len(tests) <= 1:
         return {t: calibrate_test(damper, bench, t, **kwargs) for t in tests}
+    # tests in parallel: each sampler then runs its ensembles in its own process
+    kwargs["config"] = replace(kwargs.get("config", SamplerConfig()), workers=1)
     jobs = [(damper, bench.source, t, kwargs) for t in tests]
     with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
         return dict(pool.map(_work, jobs))
@@ -122,6 +124,10 @@ def is_up_to_date(out, damper: Damper, bench, test: str, paramset: str, seed: in
     if s is None:
         return False
     cfg = s.get("config", {})
+
+    def settings(d):  # the number of processes does not change the draws
+        return {k: v for k, v in (d or {}).items() if k != "workers"}
+
     return (s.get("seed") == seed and cfg.get("bench_sha256") == _fingerprint(bench)
-            and cfg.get("sampler") == asdict(config)
+            and settings(cfg.get("sampler")) == settings(asdict(config))
             and cfg.get("damper_values") == {k: v for k, v in asdict(damper).items()})

@@ -10,8 +10,10 @@ kept chain is thinned by half the smallest autocorrelation time. R-hat compares 
 
 from __future__ import annotations
 
+import os
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import emcee
@@ -46,6 +48,9 @@ class SamplerConfig:
         Draws kept per ensemble after thinning (further thinned evenly beyond this).
     ga_population, ga_generations : int
         The initialising point fit.
+    workers : int
+        Processes for the ensembles (they are independent; the draws do not depend on it);
+        default 2 where there are 2 cores, 1 runs them in this process.
     """
 
     nwalkers: int = 24
@@ -57,6 +62,7 @@ class SamplerConfig:
     max_draws: int = 1000
     ga_population: int = 60
     ga_generations: int = 200
+    workers: int = max(1, min(2, os.cpu_count() or 1))
 
 
 @dataclass(frozen=True)
@@ -158,6 +164,40 @@ class _Progress:
         sys.stderr.flush()
 
 
+def _run_ensemble(job):
+    """One independently seeded ensemble, run to convergence; module-level so processes can run it."""
+    like, z0, ss, nwalkers, config, progress, e = job
+    prior = like.prior
+    ndim = prior.ndim
+    show = _Progress(progress or "", progress is not None)
+    rng = np.random.default_rng(ss)
+    p0 = _ball(like, z0, nwalkers, rng)
+    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, like, vectorize=True, moves=moves)
+    state = emcee.State(p0, random_state=np.random.RandomState(rng.integers(2**32)).get_state())
+    n = 0
+    while True:
+        state = sampler.run_mcmc(state, config.check_every, progress=False)
+        n += config.check_every
+        burn = int(config.burn_fraction * n)
+        tau = sampler.get_autocorr_time(discard=burn, quiet=True, tol=0)
+        done = (n - burn) >= config.tau_factor * np.max(tau)
+        show(f"ensemble {e + 1}/{config.n_ensembles}, step {n}, tau {np.max(tau):.0f}, "
+             f"need {config.tau_factor * np.max(tau) / (1 - config.burn_fraction):.0f} steps")
+        if done or n >= config.max_steps:
+            break
+    thin = max(1, int(0.5 * np.min(tau)))
+    chain = sampler.get_chain(discard=burn, thin=thin)  # (steps, walkers, ndim)
+    lp = sampler.get_log_prob(discard=burn, thin=thin)
+    chain = np.swapaxes(chain, 0, 1).reshape(-1, ndim)  # walker-major
+    lp = lp.T.reshape(-1)
+    if len(chain) > config.max_draws:
+        keep = np.linspace(0, len(chain) - 1, config.max_draws).round().astype(int)
+        chain, lp = chain[keep], lp[keep]
+    return (prior.to_natural(chain), lp, float(np.mean(sampler.acceptance_fraction)), tau, n, burn, thin,
+            bool(done))
+
+
 def sample(like: TestLikelihood, *, seed: int, config: SamplerConfig = SamplerConfig(),
            progress: str | None = None) -> SampleResult:
     """Sample the posterior of one likelihood.
@@ -183,49 +223,22 @@ def sample(like: TestLikelihood, *, seed: int, config: SamplerConfig = SamplerCo
     nwalkers = max(config.nwalkers, 2 * ndim + 2)
     nwalkers += nwalkers % 2
     show = _Progress(progress or "", progress is not None)
-    seqs = np.random.SeedSequence(seed).spawn(config.n_ensembles + 1)
+    seqs = np.random.SeedSequence(seed).spawn(config.n_ensembles + 1)  # the same draws for any `workers`
     show("point fits (differential evolution)")
     ga_rng = np.random.default_rng(seqs[0])
     fit = fit_ga(like, seed=ga_rng, population=config.ga_population, generations=config.ga_generations)
     start = fit_ga(like, seed=ga_rng, population=config.ga_population, generations=config.ga_generations,
                    cost="likelihood")
     z0 = _mode(like, start)
-    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
-    xs, lps, acc, taus, steps, burns, thins = [], [], [], [], [], [], []
-    converged = True
-    for e, ss in enumerate(seqs[1:]):
-        rng = np.random.default_rng(ss)
-        p0 = _ball(like, z0, nwalkers, rng)
-        sampler = emcee.EnsembleSampler(nwalkers, ndim, like, vectorize=True, moves=moves)
-        state = emcee.State(p0, random_state=np.random.RandomState(rng.integers(2**32)).get_state())
-        n = 0
-        tau = np.full(ndim, np.inf)
-        while True:
-            state = sampler.run_mcmc(state, config.check_every, progress=False)
-            n += config.check_every
-            burn = int(config.burn_fraction * n)
-            tau = sampler.get_autocorr_time(discard=burn, quiet=True, tol=0)
-            done = (n - burn) >= config.tau_factor * np.max(tau)
-            show(f"ensemble {e + 1}/{config.n_ensembles}, step {n}, tau {np.max(tau):.0f}, "
-                 f"need {config.tau_factor * np.max(tau) / (1 - config.burn_fraction):.0f} steps")
-            if done or n >= config.max_steps:
-                converged &= bool(done)
-                break
-        thin = max(1, int(0.5 * np.min(tau)))
-        chain = sampler.get_chain(discard=burn, thin=thin)  # (steps, walkers, ndim)
-        lp = sampler.get_log_prob(discard=burn, thin=thin)
-        chain = np.swapaxes(chain, 0, 1).reshape(-1, ndim)  # walker-major
-        lp = lp.T.reshape(-1)
-        if len(chain) > config.max_draws:
-            keep = np.linspace(0, len(chain) - 1, config.max_draws).round().astype(int)
-            chain, lp = chain[keep], lp[keep]
-        xs.append(prior.to_natural(chain))
-        lps.append(lp)
-        acc.append(float(np.mean(sampler.acceptance_fraction)))
-        taus.append(tau)
-        steps.append(n)
-        burns.append(burn)
-        thins.append(thin)
+    jobs = [(like, z0, ss, nwalkers, config, progress, e) for e, ss in enumerate(seqs[1:])]
+    if config.workers > 1 and config.n_ensembles > 1:
+        # the ensembles are independent: one process each, up to `workers` at a time
+        with ProcessPoolExecutor(max_workers=min(config.workers, config.n_ensembles)) as pool:
+            runs = list(pool.map(_run_ensemble, jobs))
+    else:
+        runs = [_run_ensemble(job) for job in jobs]
+    xs, lps, acc, taus, steps, burns, thins, done = (list(v) for v in zip(*runs))
+    converged = all(done)
     n_draws = min(len(x) for x in xs)
     result = SampleResult(
         names=prior.names, x=np.stack([x[:n_draws] for x in xs]), log_prob=np.stack([lp[:n_draws] for lp in lps]),
