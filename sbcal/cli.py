@@ -223,6 +223,10 @@ def _add_map(sub):
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set of the runs (default theta1)")
     p.add_argument("--table", metavar="CSV", help="fit a plain table (amplitude_mm_pp, ej_nm2[, ej_sd]) instead")
     p.add_argument("--include-oiled", action="store_true", help="keep oiled tests in the fit")
+    p.add_argument("--joint", action="store_true",
+                   help="also run the joint model: one emcee run over all constant-amplitude tests of --damper "
+                        "with EJ on the power law (k, n sampled), beta per test (a minute or two)")
+    p.add_argument("--bench", metavar="PATH", help="bench CSV for --joint (default: the bundled data)")
     p.add_argument("--json", metavar="OUT", help="write the fit as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="figure: EJ and beta versus amplitude, every damper in the run store")
     p.add_argument("--seed", type=int, default=0)
@@ -248,6 +252,16 @@ def _cmd_map(args) -> int:
             raise InputError(f"{args.runs}: no finished {args.params} runs of {args.damper!r} at 3+ amplitudes "
                              f"(dampers with enough runs: {have}); run 'sbcal sample --all --damper {args.damper}' first")
         key = args.damper
+        if args.joint:
+            from .amplitude import joint_from_runs
+
+            doc = docs[key]
+            joint = joint_from_runs(resolve_damper(args.damper), _bench_for(args), args.runs, doc, args.params,
+                                    seed=args.seed, progress=f"{args.damper} joint")
+            doc["joint"] = joint
+            print(f"{key}: joint model k {joint['k'][0]:.3g} [{joint['k'][1]:.3g}, {joint['k'][2]:.3g}] N m^2, "
+                  f"n {joint['n'][0]:.3f} [{joint['n'][1]:.3f}, {joint['n'][2]:.3f}], R-hat {joint['r_hat']:.3f}, "
+                  f"{joint['wall_s']:.0f} s; {joint['comparison']}")
     for name, doc in docs.items():
         pl, sat = doc["powerlaw"], doc["saturating"]
         print(f"{name}: EJ = k (A/1mm)^-n with k {pl['k'][0]:.3g} [{pl['k'][1]:.3g}, {pl['k'][2]:.3g}] N m^2, "

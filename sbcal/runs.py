@@ -27,7 +27,7 @@ from ._io import atomic_path
 from .errors import InputError
 
 __all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
-           "loo_pointwise", "posterior_draws"]
+           "loo_pointwise", "posterior_draws", "rhat_ess"]
 
 SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
 
@@ -185,3 +185,12 @@ def posterior_draws(runs_dir, damper: str, paramset: str, parameter: str):
         amp = np.asarray(idata.constant_data["amplitude_mm_pp"])
         amplitude = float(amp[0]) if np.allclose(amp, amp[0]) else None
         yield d.parent.name, amplitude, np.asarray(idata.posterior[parameter]).ravel()
+
+
+def rhat_ess(x, names) -> dict:
+    """Rank-normalised R-hat and bulk ESS per parameter of draws ``(n_chains, n_draws, ndim)``."""
+    idata = az.from_dict(posterior={n: x[:, :, i] for i, n in enumerate(names)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r, e = az.rhat(idata), az.ess(idata, method="bulk")
+    return {n: {"r_hat": float(r[n]), "ess_bulk": float(e[n])} for n in names}
