@@ -30,7 +30,7 @@ class PointFit:
     x : ndarray, shape (n_model,)
         Best parameters, natural units.
     cost : float
-        The thesis's cost (Eq. 4.5) at ``x``.
+        The minimised cost at ``x``: the thesis's (Eq. 4.5) or the negative log-likelihood.
     n_evaluations : int
         Forward-model evaluations (parameter sets).
     generations : int
@@ -80,7 +80,7 @@ def fit_ga(like: TestLikelihood, *, seed, population: int = 60, generations: int
     filler = prior.to_z(np.clip(np.full(prior.ndim, 0.1), prior.lower, prior.upper))[0]
     count = [0]
 
-    def cost(zt):
+    def objective(zt):
         zt = np.atleast_2d(zt.T).reshape(-1, ndim)  # scipy passes (ndim, S) when vectorized
         z = np.tile(filler, (len(zt), 1))
         z[:, im] = zt
@@ -94,7 +94,7 @@ def fit_ga(like: TestLikelihood, *, seed, population: int = 60, generations: int
 
     t0 = time.perf_counter()
     res = differential_evolution(
-        cost, bounds=list(zip(lo, hi)), popsize=max(1, int(np.ceil(population / ndim))), maxiter=generations,
+        objective, bounds=list(zip(lo, hi)), popsize=max(1, int(np.ceil(population / ndim))), maxiter=generations,
         tol=tol, seed=seed, polish=polish, vectorized=True, updating="deferred", init="sobol",
     )
     z = np.tile(filler, (1, 1))
