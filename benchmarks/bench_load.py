@@ -12,7 +12,6 @@ the ratio to the baseline and the pipeline's peak traced memory (tracemalloc, a 
 import argparse
 import math
 import tempfile
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -24,14 +23,7 @@ from sbcal.bench import (THESIS_TESTS, curves_to_frame, load_bench, noise_model,
                          remove_outlier_runs, write_bench)
 from sbcal.damper import resolve_damper
 
-
-def best_time(fn, repeat):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+from _timing import best_time
 
 
 def make_file(path: Path, rows: int, seed: int) -> None:

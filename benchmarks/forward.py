@@ -10,7 +10,6 @@ core and >= 300x the loop.
 
 import argparse
 import os
-import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the target says
 
@@ -20,14 +19,7 @@ from sbcal import STANDARD_GRID_HZ, dynamic_stiffness  # noqa: E402
 from sbcal.damper import resolve_damper  # noqa: E402
 from sbcal.reference import dynamic_stiffness_loop  # noqa: E402
 
-
-def best_time(fn, repeat):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+from _timing import best_time  # noqa: E402
 
 
 def main():

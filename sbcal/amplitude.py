@@ -204,18 +204,23 @@ def points_from_table(path) -> list:
     return points
 
 
+def _points(records, damper: str, parameter: str, include=lambda test: True, mixed: bool = False) -> list:
+    """Test points from ``posterior_draws`` records (see :func:`points_from_runs`)."""
+    out = []
+    for test, amplitude, draws in records:
+        if parameter not in draws or (amplitude is None and not mixed) or not include(test):
+            continue
+        v = np.log(draws[parameter])
+        q = np.quantile(draws[parameter], [0.5, (1 - LEVEL) / 2, (1 + LEVEL) / 2])
+        out.append(TestPoint(damper, test, amplitude, float(v.mean()), float(v.std(ddof=1)), *map(float, q)))
+    return out
+
+
 def points_from_runs(runs_dir, damper: str, parameter: str = "EJ", paramset: str = "theta1",
                      include=lambda test: True, mixed: bool = False) -> list:
     """Test points of one damper from stored runs: tests with one constant amplitude only, unless
     ``mixed`` (then mixed-amplitude tests come with ``amplitude = None``)."""
-    out = []
-    for test, amplitude, draws in posterior_draws(runs_dir, damper, paramset, parameter):
-        if (amplitude is None and not mixed) or not include(test):
-            continue
-        v = np.log(draws)
-        q = np.quantile(draws, [0.5, (1 - LEVEL) / 2, (1 + LEVEL) / 2])
-        out.append(TestPoint(damper, test, amplitude, float(v.mean()), float(v.std(ddof=1)), *map(float, q)))
-    return out
+    return _points(posterior_draws(runs_dir, damper, paramset, (parameter,)), damper, parameter, include, mixed)
 
 
 def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float | None = None):
@@ -268,12 +273,13 @@ def map_dampers(runs_dir, paramset: str = "theta1", *, seed: int = 0, include_oi
     docs = {}
     for d in sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []:
         keep = (lambda t: True) if include_oiled else (lambda t: "oiled" not in t)
-        ej = points_from_runs(root, d, "EJ", paramset, keep)
+        records = list(posterior_draws(root, d, paramset, ("EJ", "beta")))  # every run read once
+        ej = _points(records, d, "EJ", keep)
         if len({p.amplitude for p in ej}) < 3:
             continue
-        beta = points_from_runs(root, d, "beta", paramset, keep)
+        beta = _points(records, d, "beta", keep)
         doc, fits = amplitude_map(ej, beta, seed=seed, ej_static=ej_static(d))
-        every = points_from_runs(root, d, "EJ", paramset, lambda t: True, mixed=True)
+        every = _points(records, d, "EJ", mixed=True)
         used = {p.test for p in ej}
         doc["excluded"] = [{"test": p.test, "amplitude_mm_pp": p.amplitude, "ej_nm2": [p.median, p.lo, p.hi]}
                            for p in every if p.test not in used]

@@ -10,7 +10,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from .bench import load_bench, noise_model, remove_outlier_runs
+from .bench import DEFAULT_Z_THRESHOLD, load_bench, noise_model, remove_outlier_runs
 from .damper import Damper
 from .ga import fit_ga
 from .likelihood import TestLikelihood
@@ -36,7 +36,7 @@ def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", 
     Returns ``(like, cleaned)`` where ``cleaned`` is the :class:`sbcal.bench.CleanedTest`.
     """
     td = bench.test(damper.name, test)
-    cleaned = remove_outlier_runs(td) if z_threshold is None else remove_outlier_runs(td, z_threshold=z_threshold)
+    cleaned = remove_outlier_runs(td, DEFAULT_Z_THRESHOLD if z_threshold is None else z_threshold)
     data = cleaned.data
     noise = noise_model(data)
     prior = load_prior(paramset, damper, prior_path)
@@ -75,7 +75,7 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     result = sample(like, seed=seed, config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
             "bench": bench.source, "bench_sha256": _fingerprint(bench), "prior": like.prior.as_dict(), "sampler": asdict(config),
-            "command": command, "damper_values": {k: v for k, v in asdict(damper).items()}}
+            "command": command, "damper_values": asdict(damper)}
     idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
                               seed=seed, meta=meta)
     summary = summarize(idata, result)
@@ -116,7 +116,6 @@ def calibrate_tests(damper: Damper, bench, tests, *, workers: int = 1, **kwargs)
         return dict(pool.map(_work, jobs))
 
 
-
 def is_up_to_date(out, damper: Damper, bench, test: str, paramset: str, seed: int,
                   config: SamplerConfig = SamplerConfig()) -> bool:
     """True when a finished run of this test exists for the same data, damper, seed and settings."""
@@ -130,4 +129,4 @@ def is_up_to_date(out, damper: Damper, bench, test: str, paramset: str, seed: in
 
     return (s.get("seed") == seed and cfg.get("bench_sha256") == _fingerprint(bench)
             and settings(cfg.get("sampler")) == settings(asdict(config))
-            and cfg.get("damper_values") == {k: v for k, v in asdict(damper).items()})
+            and cfg.get("damper_values") == asdict(damper))

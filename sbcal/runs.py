@@ -169,22 +169,22 @@ def loo_pointwise(log_lik) -> np.ndarray:
     return np.asarray(res.loo_i)
 
 
-def posterior_draws(runs_dir, damper: str, paramset: str, parameter: str):
-    """Yield ``(test, amplitude, draws)`` for every finished run of a damper.
+def posterior_draws(runs_dir, damper: str, paramset: str, parameters):
+    """Yield ``(test, amplitude, draws)`` for every finished run of a damper, each run read once.
 
     ``amplitude`` is the test's amplitude [mm p-p] when it is the same on every line, else None
-    (mixed-amplitude tests such as ``2-1``); ``draws`` are the flattened posterior draws.
+    (mixed-amplitude tests such as ``2-1``); ``draws`` maps each of ``parameters`` that the run has
+    to its flattened posterior draws.
     """
     root = Path(runs_dir) / damper
     if not root.is_dir():
         return
     for d in sorted(p.parent for p in root.glob(f"*/{paramset}/summary.json")):
         idata, _ = read_run(d)
-        if parameter not in idata.posterior:
-            continue
         amp = np.asarray(idata.constant_data["amplitude_mm_pp"])
         amplitude = float(amp[0]) if np.allclose(amp, amp[0]) else None
-        yield d.parent.name, amplitude, np.asarray(idata.posterior[parameter]).ravel()
+        yield d.parent.name, amplitude, {p: np.asarray(idata.posterior[p]).ravel()
+                                         for p in parameters if p in idata.posterior}
 
 
 def rhat_ess(x, names) -> dict:
