@@ -438,12 +438,16 @@ def main(argv=None) -> int:
     except InputError as e:
         print(f"sbcal: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("sbcal: interrupted", file=sys.stderr)
-        return 130
     except BrokenPipeError:  # output piped into head & co.
         sys.stderr.close()
         return 0
+    except OSError as e:  # the file system refused (unwritable output, disk full ...): one line, no traceback
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"sbcal: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sbcal: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -65,3 +65,14 @@ def test_no_command_and_unknown_option(capsys):
     assert main(["simulate", "--damper", "damper1", "-o", "x.csv", "--bogus"]) == 2
     err = capsys.readouterr().err
     assert "unrecognized arguments: --bogus" in err and err.count("\n") == 1
+
+
+def test_unwritable_output_is_one_line(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc = main(["simulate", "--damper", "damper1", "-o", str(blocker / "sub" / "s.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(blocker) in err and err.count("\n") == 1 and "Traceback" not in err
+    rc = main(["report", "--runs", str(tmp_path), "-o", str(blocker / "rep")])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(blocker) in err and err.count("\n") == 1
