@@ -403,6 +403,69 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+# --- diagnose ----------------------------------------------------------------------------------
+
+def _add_diagnose(sub):
+    p = sub.add_parser("diagnose", help="locate the misfit, name the missing physics, model it, show the fit improve",
+                       description="Fit the per-test model, locate where the recordings leave its predictive band, "
+                                   "refit the catalogue's physics extensions the residuals point to, compare them "
+                                   "by PSIS-LOO and give a verdict (docs/diagnose.md).")
+    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
+                   help="bundled damper name or TOML path (default damper1)")
+    p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
+    p.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels (default: all of the damper's)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--json", metavar="OUT", help="write the diagnosis as JSON")
+    p.add_argument("--runs", default="runs", metavar="DIR",
+                   help="also store it as DIR/<damper>/diagnose.json for the report (default runs/)")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    return p
+
+
+def _write_json(doc, path) -> None:
+    import json
+
+    from ._io import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def _cmd_diagnose(args) -> int:
+    from pathlib import Path
+
+    from .damper import resolve_damper
+    from .diagnose import diagnose
+
+    damper = resolve_damper(args.damper)
+    bench = _bench_for(args)
+    result = diagnose(damper, bench, args.tests, seed=args.seed, progress=not args.quiet)
+    result["command"] = args.command_line
+    if args.json:
+        _write_json(result, args.json)
+    stored = Path(args.runs) / damper.name / "diagnose.json"
+    stored.parent.mkdir(parents=True, exist_ok=True)
+    _write_json(result, stored)
+    print(f"{damper.name}: verdict {result['verdict']}")
+    for b in result["bands"][:12]:
+        print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
+    if len(result["bands"]) > 12:
+        print(f"  ... {len(result['bands']) - 12} more bands")
+    for r in result["ranking"]:
+        print(f"  {r['effect']:30s} delta ELPD {r['delta_elpd']:10.1f} +- {r['se']:7.1f}, "
+              f"removes {r['explained']:.0%} of the misfit in the bands")
+    if result["parameters"]:
+        print(f"  {result['parameters']['words']}")
+    b, a = result["before"], result["after"]
+    print(f"  before: rms z {b['rms_z']:.2f}, 90% band coverage {b['coverage_90']:.3f}, "
+          f"{b['lines_off']}/{b['n_lines']} lines off")
+    if a is not b and a["effect"] != "baseline":
+        print(f"  after ({a['effect']}): rms z {a['rms_z']:.2f}, 90% band coverage {a['coverage_90']:.3f}, "
+              f"{a['lines_off']}/{a['n_lines']} lines off")
+    print(f"stored in {stored}" + (f" and {args.json}" if args.json else ""))
+    return 0
+
+
 # One line per subcommand; each helper pair lives above, in the order of this table.
 _COMMANDS = {
     "simulate": (_add_simulate, _cmd_simulate),
@@ -412,6 +475,7 @@ _COMMANDS = {
     "run": (_add_run, _cmd_run),
     "data": (_add_data, _cmd_data),
     "bench": (_add_bench, _cmd_bench),
+    "diagnose": (_add_diagnose, _cmd_diagnose),
 }
 
 

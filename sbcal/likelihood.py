@@ -31,7 +31,7 @@ from .damper import Damper
 from .fem import dynamic_stiffness
 from .priors import Prior
 
-__all__ = ["TestLikelihood"]
+__all__ = ["TestLikelihood", "JointLikelihood"]
 
 _LOG_2PI = np.log(2 * np.pi)
 
@@ -96,7 +96,10 @@ class TestLikelihood:
         self.fixed = dict(fixed or {})
         self.model = dynamic_stiffness if model is None else model
         self._imodel = [prior.names.index(n) for n in prior.model_names]
-        self._ierr = [prior.names.index("sigma_mag"), prior.names.index("sigma_phase")]
+        # a prior without the model-error scales gives the noise-only likelihood (s_q = 0): the
+        # model must explain the run means within the noise (``sbcal.diagnose`` compares so)
+        self._ierr = ([prior.names.index("sigma_mag"), prior.names.index("sigma_phase")]
+                      if "sigma_mag" in prior.names else None)
         self._poly = [n for n in prior.model_names if n.startswith("q")]
 
     # -- pieces -----------------------------------------------------------------------------
@@ -126,12 +129,20 @@ class TestLikelihood:
         ej = sum(p[q][:, None] * omega ** (int(q[1:]) - 1) for q in self._poly)
         return np.all(ej > 0, axis=1)
 
-    def log_likelihood(self, x) -> np.ndarray:
-        """Log-likelihood of the run means, natural units ``(n, ndim)`` -> ``(n,)``."""
+    def _s2(self, x) -> np.ndarray:
+        """Model-error variances ``s_q^2``: shape (2, n, 1) (zeros for the noise-only likelihood)."""
+        if self._ierr is None:
+            return np.zeros((2, len(x), 1))
+        return x[:, self._ierr].T[:, :, None] ** 2
+
+    def log_likelihood(self, x, mu=None) -> np.ndarray:
+        """Log-likelihood of the run means, natural units ``(n, ndim)`` -> ``(n,)``.
+
+        ``mu`` (as :meth:`predict` returns) skips the forward model when the caller has it.
+        """
         x = np.atleast_2d(x)
-        mu = self.predict(x)
-        s2 = x[:, self._ierr].T[:, :, None] ** 2  # (2, n, 1)
-        var = self.sigma[:, None, :] ** 2 / self.n + s2
+        mu = self.predict(x) if mu is None else mu
+        var = self.sigma[:, None, :] ** 2 / self.n + self._s2(x)
         r = self._residual(mu)
         # Student-t log-density with nu = n - 1 and scale sqrt(var)
         lp = self._t_const - 0.5 * np.log(var) - 0.5 * (self.nu + 1) * np.log1p(r * r / (self.nu * var))
@@ -154,15 +165,17 @@ class TestLikelihood:
     # -- for stored draws ---------------------------------------------------------------------
     def _delta_posterior(self, r, s2, n):
         """Mean and variance of delta given ``n`` runs whose mean deviates by ``r`` from ``mu``."""
+        if self._ierr is None:  # no discrepancy term
+            return np.zeros_like(r), np.zeros_like(r)
         prec = 1.0 / s2 + n / self.sigma[:, None, :] ** 2
         v = 1.0 / prec
         return v * n / self.sigma[:, None, :] ** 2 * r, v
 
-    def pointwise_log_likelihood(self, x) -> np.ndarray:
+    def pointwise_log_likelihood(self, x, mu=None) -> np.ndarray:
         """``log p(y_r | y_-r, theta)`` per run: ``(n, n_runs)`` (magnitude and phase summed)."""
         x = np.atleast_2d(x)
-        mu = self.predict(x)  # (2, n, F)
-        s2 = x[:, self._ierr].T[:, :, None] ** 2
+        mu = self.predict(x) if mu is None else mu  # (2, n, F)
+        s2 = self._s2(x)
         n_runs = self.y.shape[1]
         out = np.zeros((len(x), n_runs))
         y0 = np.where(self.present, self.y, 0.0)
@@ -189,8 +202,7 @@ class TestLikelihood:
         """
         x = np.atleast_2d(x)
         mu = self.predict(x)
-        s2 = x[:, self._ierr].T[:, :, None] ** 2
-        m, v = self._delta_posterior(self._residual(mu), s2, self.n)
+        m, v = self._delta_posterior(self._residual(mu), self._s2(x), self.n)
         sd = np.sqrt(self.sigma[:, None, :] ** 2 + v)
         return mu + m + sd * rng.standard_t(self.nu, size=mu.shape)
 
@@ -210,3 +222,64 @@ class TestLikelihood:
         em = np.sum(w3 * ((a - np.abs(fuu)) / a) ** 2, axis=1)
         ep = np.sum(w3 * ((ph - np.degrees(np.angle(fuu))) / ph) ** 2, axis=1)
         return np.sqrt(0.3 * em + 0.7 * ep)
+
+
+class JointLikelihood:
+    """One parameter set for several tests: the log-posterior over all their run means.
+
+    The forward model runs once on all the tests' lines together (a physics that ties amplitudes
+    together, such as strand slip, gets every test's commanded amplitude per line); each test keeps
+    its own data and noise model (:class:`TestLikelihood`, whose ``model`` is not used here).
+
+    Parameters
+    ----------
+    likes : sequence of TestLikelihood
+        The tests (same damper).
+    prior : Prior
+        Over the shared parameters.
+    model : callable
+        ``model(damper, freq_hz, **params) -> complex (n, n_lines)`` on the concatenated lines; a
+        :class:`sbcal.extensions.SlipModel` built on the concatenated amplitudes.
+    """
+
+    def __init__(self, likes, prior: Prior, model):
+        self.likes = list(likes)
+        self.damper = self.likes[0].damper
+        self.prior = prior
+        self.model = model
+        self.freq_hz = np.concatenate([lk.freq_hz for lk in self.likes])
+        self._split = np.cumsum([lk.freq_hz.size for lk in self.likes])[:-1]
+        self._imodel = [prior.names.index(n) for n in prior.model_names]
+
+    def params(self, x) -> dict:
+        x = np.atleast_2d(x)
+        return {n: x[:, i] for n, i in zip(self.prior.model_names, self._imodel)}
+
+    def predict(self, x) -> list:
+        """Model curves per test: a list of ``(2, n, n_freq_t)`` (log-magnitude, phase [rad])."""
+        fuu = self.model(self.damper, self.freq_hz, **self.params(x))
+        mu = np.stack([np.log(np.abs(fuu)), np.angle(fuu)])
+        return np.split(mu, self._split, axis=2)
+
+    def _valid(self, x) -> np.ndarray:
+        return np.ones(len(np.atleast_2d(x)), bool)
+
+    def log_likelihood(self, x) -> np.ndarray:
+        x = np.atleast_2d(x)
+        return sum(lk.log_likelihood(x, mu) for lk, mu in zip(self.likes, self.predict(x)))
+
+    def pointwise_log_likelihood(self, x) -> np.ndarray:
+        """Per run of every test, tests in order: ``(n, sum of n_runs)``."""
+        x = np.atleast_2d(x)
+        return np.concatenate([lk.pointwise_log_likelihood(x, mu) for lk, mu in zip(self.likes, self.predict(x))],
+                              axis=1)
+
+    def __call__(self, z) -> np.ndarray:
+        z = np.atleast_2d(z)
+        out = self.prior.log_prob(z)
+        ok = np.isfinite(out)
+        if ok.any():
+            with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+                lp = self.log_likelihood(self.prior.to_natural(z[ok]))
+            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
+        return out

@@ -20,7 +20,7 @@ from .damper import Damper
 from .errors import InputError
 from .fem import PARAMETER_NAMES
 
-__all__ = ["Prior", "load_prior", "parameter_sets"]
+__all__ = ["Prior", "load_prior", "parameter_sets", "extension_prior"]
 
 _DISTS = ("uniform", "loguniform")
 _MODEL_ERROR = ("sigma_mag", "sigma_phase")
@@ -91,14 +91,14 @@ class Prior:
             for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
 
 
-def _default_path():
-    return resources.files("sbcal") / "priors" / "default.toml"
+def _default_path(name="default.toml"):
+    return resources.files("sbcal") / "priors" / name
 
 
-def _read(path) -> tuple[dict, str]:
+def _read(path, bundled="default.toml") -> tuple[dict, str]:
     if path is None:
-        with resources.as_file(_default_path()) as p:
-            return tomllib.loads(p.read_text()), "priors/default.toml"
+        with resources.as_file(_default_path(bundled)) as p:
+            return tomllib.loads(p.read_text()), f"priors/{bundled}"
     p = Path(path)
     try:
         return tomllib.loads(p.read_text(encoding="utf-8")), str(p)
@@ -187,4 +187,43 @@ def load_prior(paramset: str, damper: Damper, path=None) -> Prior:
         rows.append(_bounds(src, f"model_error.{n}", errors[n], n, damper))
     log_scale, lo, hi = (np.array(c) for c in zip(*rows))
     return Prior(paramset=paramset, names=tuple(names) + _MODEL_ERROR, log_scale=log_scale.astype(bool),
+                 lower=lo.astype(float), upper=hi.astype(float))
+
+
+def extension_prior(effect: str, damper: Damper, path=None, base_path=None) -> Prior:
+    """The prior of a physics extension of ``sbcal diagnose`` (or of its ``baseline``).
+
+    The extension keeps the ``base`` parameters of the default prior file (their boxes) and adds
+    its own; there are no model-error scales: the diagnosis's likelihood is the noise model's.
+
+    Parameters
+    ----------
+    effect : str
+        ``"baseline"`` or a catalogue id (``priors/extensions.toml``).
+    damper : Damper
+    path : path-like, optional
+        An extensions file; default the bundled ``priors/extensions.toml``.
+    base_path : path-like, optional
+        The prior file of the ``base`` parameters; default ``priors/default.toml``.
+    """
+    doc, src = _read(path, "extensions.toml")
+    spec = doc.get(effect)
+    if not isinstance(spec, dict):
+        raise InputError(f"{src}: table '[{effect}]': missing")
+    base = spec.get("base", [])
+    if not isinstance(base, list) or not all(isinstance(n, str) for n in base):
+        raise InputError(f"{src}: key '{effect}.base': expected a list of parameter names")
+    base_doc, base_src = _read(base_path)
+    table = base_doc.get("parameters", {})
+    rows, names = [], []
+    for n in base:
+        if n not in PARAMETER_NAMES or n not in table:
+            raise InputError(f"{src}: key '{effect}.base': {n!r} is not a parameter of {base_src}")
+        rows.append(_bounds(base_src, f"parameters.{n}", table[n], n, damper))
+        names.append(n)
+    for n, box in spec.get("parameters", {}).items():
+        rows.append(_bounds(src, f"{effect}.parameters.{n}", box, n, damper))
+        names.append(n)
+    log_scale, lo, hi = (np.array(c) for c in zip(*rows))
+    return Prior(paramset=effect, names=tuple(names), log_scale=log_scale.astype(bool),
                  lower=lo.astype(float), upper=hi.astype(float))

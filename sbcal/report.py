@@ -144,6 +144,50 @@ def _cv_figure(bench, damper: str, tests, path: Path) -> str:
     return _save(fig, path)
 
 
+def _diagnosis_figure(doc, path: Path) -> str:
+    """Standardised residuals of every test before (grey) and after (colour) the chosen extension."""
+    plt = _plt()
+    res = doc["residuals"]
+    tests = list(res)
+    fig, axes = plt.subplots(2, len(tests), figsize=(2.2 * len(tests) + 1, 4.4), sharey="row", squeeze=False)
+    after = doc["after"]["effect"]
+    for j, t in enumerate(tests):
+        f = np.asarray(res[t]["freq_hz"])
+        for q, name in enumerate(("magnitude", "phase")):
+            ax = axes[q, j]
+            zb, za = np.asarray(res[t]["z_before"][q]), np.asarray(res[t]["z_after"][q])
+            ax.plot(f, np.clip(zb, -50, 50), color="0.6", lw=1, label="per-test model")
+            if after != "baseline":
+                ax.plot(f, np.clip(za, -50, 50), color="C3", lw=1.2, label=after)
+            ax.axhspan(-3, 3, color="C2", alpha=0.12, lw=0)
+            for b in doc["bands"]:
+                if b["test"] == t and b["quantity"] == name:
+                    ax.axvspan(b["f_lo"] - 0.25, b["f_hi"] + 0.25, color="C1", alpha=0.25, lw=0)
+            ax.set_xscale("log")
+            ax.set_title(f"{t} {name}", fontsize=8)
+            if j == 0:
+                ax.set_ylabel("z (clipped at ±50)")
+            if q == 1:
+                ax.set_xlabel("f [Hz]")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"{doc['damper']}: residual of the run mean / its predictive sd; orange: located bands")
+    return _save(fig, path)
+
+
+def _diagnosis(path: Path, figs: Path):
+    """The stored ``sbcal diagnose`` result of a damper, ready for the page (None if there is none)."""
+    import json
+
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+        doc["figure"] = _diagnosis_figure(doc, figs / f"{doc['damper']}_diagnosis.png")
+    except (ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a diagnosis written by sbcal diagnose ({e})") from None
+    return doc
+
+
 def _fmt(v, digits=4):
     return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
 
@@ -235,7 +279,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                                 "amplitudes": ", ".join(f"{a:g}" for a in np.unique(td.amplitude_mm_pp)),
                                 "lines": len(td.freq_hz)})
             cv_fig = _cv_figure(bench, dname, expected, figs / f"{dname}_cv.png")
-        dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note})
+        dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note,
+                        "diagnosis": _diagnosis(runs / dname / "diagnose.json", figs)})
 
     say("report: amplitude map")
     known = set(bundled_dampers())

@@ -1,0 +1,614 @@
+"""Missing physics: locate where the model and the recordings differ, name the physics left out,
+model it and show the fit improve (``docs/diagnose.md``).
+
+1. **Baseline**: the per-test model (``theta1``: EJ, beta, a1, a2) with the noise-only likelihood
+   (no model-error scales: the model must explain the run means within the bench's scatter),
+   sampled per test.
+2. **Locate**: posterior predictive residuals of each test's run mean, line by line, standardised
+   by the noise model and the posterior spread, ``z = (ybar - E mu) / sqrt(sigma^2 / n + Var mu)``;
+   a line is off when ``|z|`` exceeds the Student-t quantile that keeps the family-wise false-alarm
+   rate over *all* lines tested at ``alpha`` (Bonferroni); neighbouring off lines form a band.
+   Structure statistics: lag-1 correlation of z over frequency, EJ trend with amplitude, correlation
+   of the misfit with the cable's predicted curvature, the share of the phase misfit linear in
+   omega, and of the misfit a ``-omega^2 m`` term explains.
+3. **Name**: each catalogue extension (:mod:`sbcal.extensions`) whose signature statistic is present
+   is refitted (jointly over the amplitudes of a cable for ``strand_slip``) and compared with the
+   baseline by PSIS-LOO, the log-likelihood grouped by run (a run is one curve), with the standard
+   error of the difference.
+4. **Verdict**: ``none`` when the baseline has no off line; else the best extension when it beats the
+   baseline clearly (``delta_elpd > clear_se * se``) *and* removes at least ``min_explained`` of the
+   misfit in the located bands; else ``unexplained`` (the bands are the answer).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import least_squares
+from scipy.stats import qmc
+
+from .bench import noise_model, remove_outlier_runs
+from .damper import Damper
+from .errors import InputError
+from .extensions import EXTENSIONS, model_for
+from .fem import arm_curvatures
+from .ga import fit_ga
+from .likelihood import JointLikelihood, TestLikelihood
+from .priors import extension_prior
+from .runs import loo_pointwise, versions
+from .sampler import SamplerConfig, _run_ensemble
+
+__all__ = ["DiagnoseConfig", "diagnose"]
+
+_QUANTITIES = ("magnitude", "phase")
+_LABEL = re.compile(r"^\d+(?:\.\d+)?-\d+(?:\.\d+)?(?:-(.+))?$")
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    """Settings of :func:`diagnose` (the defaults are what ``sbcal diagnose`` uses).
+
+    Attributes
+    ----------
+    alpha : float
+        Family-wise false-alarm rate of the predictive check over all lines of all tests.
+    clear_se : float
+        An extension beats the baseline clearly when ``delta_elpd > clear_se * se``.
+    min_explained : float
+        ... and removes at least this share of the baseline's squared misfit in the located bands.
+    screen_t : float
+        Screening: |t| of the EJ-versus-amplitude trend that admits ``strand_slip``.
+    screen_share : float
+        Screening: share of the misfit a signature explains (phase linear in omega: ``sensor_delay``;
+        ``-omega^2 m``: ``fixture_mass``) that admits the extension.
+    screen_corr : float
+        Screening: lag-1 correlation of the residuals over frequency (structured misfit) that
+        admits the extensions without a specific signature, or curvature correlation for strand slip.
+    draws : int
+        Posterior draws kept per fit (over all ensembles).
+    n_ensembles, tau_factor, max_steps, joint_max_steps : int, float, int, int
+        emcee: independent ensembles per fit, run length in autocorrelation times, step cap (of a
+        per-test fit, of a joint fit: its parameters are more correlated).
+    workers : int
+        Processes (fits run in parallel).
+    """
+
+    alpha: float = 0.05
+    clear_se: float = 4.0
+    min_explained: float = 0.5
+    screen_t: float = 3.0
+    screen_share: float = 0.05
+    screen_corr: float = 0.3
+    draws: int = 400
+    n_ensembles: int = 2
+    tau_factor: float = 20.0
+    max_steps: int = 3000
+    joint_max_steps: int = 8000
+    workers: int = field(default_factory=lambda: min(2, os.cpu_count() or 1))
+
+    def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
+        return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), n_ensembles=self.n_ensembles,
+                             tau_factor=self.tau_factor, burn_fraction=0.3, check_every=100,
+                             max_steps=self.joint_max_steps if joint else self.max_steps, max_draws=max(1, self.draws // self.n_ensembles), workers=1)
+
+
+# --- fits --------------------------------------------------------------------------------------
+
+def _group(test: str) -> str:
+    """Cable state of a test label: the suffix after the amplitudes (``1-1-oiled`` -> ``oiled``)."""
+    m = _LABEL.match(test)
+    return (m.group(1) or "") if m else test
+
+
+def _residual_batch(like, x) -> np.ndarray:
+    """Standardised residuals of the run means, all tests, ``(n, n_values)``."""
+    likes = like.likes if isinstance(like, JointLikelihood) else [like]
+    mus = like.predict(x) if isinstance(like, JointLikelihood) else [like.predict(x)]
+    out = []
+    for lk, mu in zip(likes, mus):
+        r = lk._residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
+        out.append(np.moveaxis(r, 1, 0).reshape(len(x), -1))
+    r = np.concatenate(out, axis=1)
+    return np.where(np.isfinite(r), r, 1e3)
+
+
+def _start_joint(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
+    """A global start for a joint fit: the best of a Sobol design, refined by least squares."""
+    prior = like.prior
+    lo, hi = prior.z_lower, prior.z_upper
+    u = qmc.Sobol(prior.ndim, seed=rng).random(512)
+    z = lo + (hi - lo) * u
+    lp = np.concatenate([like(z[i:i + 128]) for i in range(0, len(z), 128)])
+    starts = z[np.argsort(-lp)[:4]]
+    step = 1e-6 * (hi - lo)
+
+    def fun(zz):
+        return _residual_batch(like, prior.to_natural(zz))[0]
+
+    def jac(zz):
+        h = np.where(zz + step <= hi, step, -step)
+        r = _residual_batch(like, prior.to_natural(np.vstack([zz, zz + np.diag(h)])))
+        return ((r[1:] - r[0]) / h[:, None]).T
+
+    best, best_lp = starts[0], -np.inf
+    for z0 in starts:
+        z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, max_nfev=80)
+        v = like(res.x)[0]
+        if v > best_lp:
+            best, best_lp = res.x, v
+    return best
+
+
+def _fit_job(job):
+    """One posterior (a test's, or a joint one): start, emcee ensembles, summaries. Module-level: picklable."""
+    key, like, ss, config = job
+    t0 = time.perf_counter()
+    prior = like.prior
+    seqs = ss.spawn(config.n_ensembles + 1)
+    rng = np.random.default_rng(seqs[0])
+    if isinstance(like, JointLikelihood):
+        z0 = _start_joint(like, rng)
+    else:
+        fit = fit_ga(like, seed=rng, population=40, generations=200, cost="likelihood")
+        z0 = prior.to_z(fit.x[None])[0]
+    sc = config.sampler(prior.ndim, joint=isinstance(like, JointLikelihood))
+    runs = [_run_ensemble((like, z0, s, sc.nwalkers + sc.nwalkers % 2, sc, None, e)) for e, s in enumerate(seqs[1:])]
+    n = min(len(r[0]) for r in runs)
+    x = np.concatenate([r[0][:n] for r in runs])
+    likes = like.likes if isinstance(like, JointLikelihood) else [like]
+    mus = like.predict(x) if isinstance(like, JointLikelihood) else [like.predict(x)]
+    mu_mean, mu_var = [], []
+    for lk, mu in zip(likes, mus):
+        # phase draws about the first draw, so a wrap cannot corrupt the mean
+        d = mu.copy()
+        d[1] = mu[1, :1] + np.remainder(mu[1] - mu[1, :1] + np.pi, 2 * np.pi) - np.pi
+        mu_mean.append(d.mean(axis=1))
+        mu_var.append(d.var(axis=1))
+    ll = np.concatenate([lk.pointwise_log_likelihood(x, mu) for lk, mu in zip(likes, mus)], axis=1)
+    return key, dict(x=x, names=prior.names, pointwise=ll, mu_mean=mu_mean, mu_var=mu_var,
+                     converged=all(r[7] for r in runs), tau=float(max(np.max(r[3]) for r in runs)),
+                     steps=int(max(r[4] for r in runs)), wall_s=time.perf_counter() - t0)
+
+
+class _Progress:
+    def __init__(self, label: str, enabled: bool):
+        self.label, self.enabled, self.t0 = label, enabled, time.perf_counter()
+
+    def __call__(self, text: str):
+        if self.enabled:
+            sys.stderr.write(f"{self.label} [{time.perf_counter() - self.t0:5.0f} s]: {text}\n")
+            sys.stderr.flush()
+
+
+def _run_jobs(jobs, workers, show, what):
+    """Run fit jobs (in processes when workers > 1), reporting each as it finishes."""
+    out = {}
+    if workers > 1 and len(jobs) > 1:
+        from concurrent.futures import as_completed
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = [pool.submit(_fit_job, j) for j in jobs]
+            for i, f in enumerate(as_completed(futures)):
+                key, res = f.result()
+                out[key] = res
+                show(f"{what}: {i + 1}/{len(jobs)} fits done ({key[0]} {key[1]}, {res['wall_s']:.1f} s)")
+    else:
+        for i, j in enumerate(jobs):
+            key, res = _fit_job(j)
+            out[key] = res
+            show(f"{what}: {i + 1}/{len(jobs)} fits done ({key[0]} {key[1]}, {res['wall_s']:.1f} s)")
+    return out
+
+
+# --- locate ------------------------------------------------------------------------------------
+
+def _check(likes, mu_mean, mu_var, alpha: float):
+    """Standardised residuals per test ``(2, n_freq)``, the off-line threshold per test, and coverage."""
+    n_lines = sum(2 * lk.freq_hz.size for lk in likes)
+    z, thr, inside, total = [], [], 0, 0
+    for lk, m, v in zip(likes, mu_mean, mu_var):
+        r = lk._residual(m[:, None, :])[:, 0]
+        z.append(r / np.sqrt(lk.sigma ** 2 / lk.n + v))
+        thr.append(stats.t.ppf(1 - alpha / (2 * n_lines), lk.nu))  # (n_freq,)
+        # 90 % predictive band of a new run against every recorded run
+        half = stats.t.ppf(0.95, lk.nu) * np.sqrt(lk.sigma ** 2 + v)
+        dev = lk.y - m[:, None, :]
+        dev[1] = np.remainder(dev[1] + np.pi, 2 * np.pi) - np.pi
+        ok = (np.abs(dev) <= half[:, None, :]) & lk.present[None]
+        inside += int(ok.sum())
+        total += 2 * int(lk.present.sum())
+    return z, thr, inside / total
+
+
+def _bands(tests, likes, z, thr) -> list:
+    """Neighbouring off lines (a gap of one line allowed) as bands, per test and quantity."""
+    bands = []
+    for t, lk, zt, th in zip(tests, likes, z, thr):
+        for q, name in enumerate(_QUANTITIES):
+            off = np.flatnonzero(np.abs(zt[q]) > th)
+            if off.size == 0:
+                continue
+            groups = np.split(off, np.flatnonzero(np.diff(off) > 2) + 1)
+            for g in groups:
+                lines = np.arange(g[0], g[-1] + 1)
+                bands.append({"test": t, "quantity": name, "f_lo": float(lk.freq_hz[g[0]]),
+                              "f_hi": float(lk.freq_hz[g[-1]]), "lines": [int(i) for i in lines],
+                              "max_abs_z": float(np.max(np.abs(zt[q, lines])))})
+    return bands
+
+
+def _band_rms(bands, tests, z) -> list:
+    index = {t: i for i, t in enumerate(tests)}
+    return [float(np.sqrt(np.mean(z[index[b["test"]]][_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2)))
+            for b in bands]
+
+
+def _band_sq(bands, tests, z) -> float:
+    index = {t: i for i, t in enumerate(tests)}
+    return float(sum(np.sum(z[index[b["test"]]][_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2) for b in bands))
+
+
+def _share(resid, weight_sq, regressor) -> tuple[float, float]:
+    """Share of ``sum w r^2`` explained by ``r ~ c * regressor`` (weighted, through 0), and ``c``."""
+    w = weight_sq
+    num, den = np.sum(w * resid * regressor), np.sum(w * regressor * regressor)
+    if den <= 0:
+        return 0.0, 0.0
+    c = num / den
+    return float(max(0.0, 1 - np.sum(w * (resid - c * regressor) ** 2) / np.sum(w * resid * resid))), float(c)
+
+
+def _statistics(damper, tests, likes, fits, z) -> dict:
+    """The structure statistics of the baseline's residuals (module docstring)."""
+    # lag-1 correlation of z over frequency, mean over tests and quantities
+    ac = [np.corrcoef(zt[q, :-1], zt[q, 1:])[0, 1] for zt in z for q in (0, 1) if zt.shape[1] > 2 and np.std(zt[q]) > 0]
+    out = {"lag1_correlation": float(np.nanmean(ac)) if ac else 0.0}
+    # phase residual linear in omega (a delay) and a -omega^2 m term on f (a mass)
+    ph_r, ph_w, ph_x, c_r, c_w, c_x = [], [], [], [], [], []
+    for lk, t in zip(likes, tests):
+        m, v = fits[t]["mu_mean"][0], fits[t]["mu_var"][0]
+        r = lk._residual(m[:, None, :])[:, 0]
+        w = 1.0 / (lk.sigma ** 2 / lk.n + v)
+        omega = 2 * np.pi * lk.freq_hz
+        ph_r.append(r[1]), ph_w.append(w[1]), ph_x.append(-omega)
+        f_model = np.exp(m[0] + 1j * m[1])
+        reg = -omega ** 2 / f_model  # d ln f / d m, real and imaginary parts = log-magnitude and phase
+        c_r.append(r.ravel()), c_w.append(w.ravel()), c_x.append(np.concatenate([reg.real, reg.imag]))
+    share, tau = _share(np.concatenate(ph_r), np.concatenate(ph_w), np.concatenate(ph_x))
+    out["phase_linear"] = {"share": share, "delay_s": tau}
+    share, mass = _share(np.concatenate(c_r), np.concatenate(c_w), np.concatenate(c_x))
+    out["magnitude_omega2"] = {"share": share, "mass_kg": mass}
+    # EJ trend with amplitude within each cable state (constant-amplitude tests)
+    trend = {}
+    for g in sorted({_group(t) for t in tests}):
+        amp, ej = [], []
+        for t, lk in zip(tests, likes):
+            a = lk.amplitude_mm_pp
+            if _group(t) == g and np.all(np.isfinite(a)) and np.allclose(a, a[0]):
+                amp.append(a[0])
+                ej.append(np.median(fits[t]["x"][:, fits[t]["names"].index("EJ")]))
+        if len(amp) >= 3 and np.ptp(np.log(amp)) > 0:
+            res = stats.linregress(np.log(amp), np.log(ej))
+            tval = res.slope / res.stderr if res.stderr > 0 else np.inf * np.sign(res.slope)
+            trend[g or "default"] = {"slope": float(res.slope), "t": float(tval), "n_tests": len(amp)}
+    out["amplitude_trend"] = trend
+    # misfit versus the predicted cable curvature (rms over both arms' ends), Spearman per test
+    rho = []
+    for t, lk in zip(tests, likes):
+        x = fits[t]["x"]
+        p = dict(zip(fits[t]["names"], np.median(x, axis=0)))
+        chi = arm_curvatures(damper, lk.freq_hz, ej1=p["EJ"], ej2=p["EJ"], beta1=p["beta"], beta2=p["beta"],
+                             xc=(np.nan_to_num(lk.amplitude_mm_pp, nan=1.0) / 2e3)[None, :], a1=p["a1"], a2=p["a2"])
+        curv = np.sqrt(np.mean(np.abs(chi[0]) ** 2, axis=(1, 2)))
+        mis = np.sum(z[tests.index(t)] ** 2, axis=0)
+        if np.ptp(curv) > 0 and np.ptp(mis) > 0:
+            rho.append(stats.spearmanr(curv, mis).statistic)
+    out["curvature_correlation"] = float(np.mean(rho)) if rho else 0.0
+    return out
+
+
+def _screen(stat: dict, config: DiagnoseConfig, tests) -> dict:
+    """Which extensions the structure statistics admit, and why."""
+    out = {}
+    for eid, ext in EXTENSIONS.items():
+        if ext.signature == "amplitude_trend":
+            ts = [abs(v["t"]) for v in stat["amplitude_trend"].values()]
+            t_max = max(ts) if ts else 0.0
+            kept = t_max >= config.screen_t or stat["curvature_correlation"] >= config.screen_corr
+            why = f"|t| of the EJ-amplitude trend {t_max:.1f}, curvature correlation {stat['curvature_correlation']:.2f}"
+        elif ext.signature in ("phase_linear", "magnitude_omega2"):
+            share = stat[ext.signature]["share"]
+            kept = share >= config.screen_share
+            why = f"share of the misfit explained by the signature {share:.2f}"
+        else:
+            kept = stat["lag1_correlation"] >= config.screen_corr
+            why = f"lag-1 correlation of the residuals {stat['lag1_correlation']:.2f}"
+        out[eid] = {"kept": bool(kept), "why": why}
+    return out
+
+
+# --- name, model and show ----------------------------------------------------------------------
+
+def _elpd(fit) -> np.ndarray:
+    return loo_pointwise(fit["pointwise"])
+
+
+def _compare(base_i, ext_i) -> tuple[float, float]:
+    d = ext_i - base_i
+    return float(d.sum()), float(np.sqrt(d.size * np.var(d, ddof=1))) if d.size > 1 else 0.0
+
+
+def _quantiles(v) -> dict:
+    q = np.quantile(v, [0.05, 0.5, 0.95])
+    return {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
+
+
+_UNITS = {"EJ_slip": "N m^2", "EJ_stick": "N m^2", "chi_slip": "1/m", "slip_exponent": "1", "beta_material": "1",
+          "beta_friction": "1", "fixture_mass_kg": "kg", "delay_s": "s", "beta_viscous": "1", "beta1": "1",
+          "beta2": "1", "rocking_rad_per_m": "rad/m", "ej_exponent": "1", "EJ": "N m^2", "beta": "1", "a1": "m",
+          "a2": "m"}
+
+
+def _combined(per_test: dict) -> dict:
+    """Precision-weighted combination of per-test posteriors (normal approximation)."""
+    m = np.array([v["mean"] for v in per_test.values()])
+    s = np.array([max(v["sd"], 1e-300) for v in per_test.values()])
+    w = 1 / s ** 2
+    mean, sd = float(np.sum(w * m) / np.sum(w)), float(1 / np.sqrt(np.sum(w)))
+    return {"median": mean, "q05": mean - 1.645 * sd, "q95": mean + 1.645 * sd}
+
+
+def _parameters(effect: str, fits: dict, keys, baseline_names) -> dict:
+    """The extension's own parameters with 90 % intervals, and what they mean on the bench."""
+    own = [n for n in fits[keys[0]]["names"] if n not in baseline_names]
+    out = {"effect": effect, "values": {}, "per_test": {}}
+    if EXTENSIONS[effect].joint:
+        # one parameter set per cable state; "values" is the state with the most tests (the dry cable)
+        out["per_group"] = {}
+        for key in keys:
+            fit = fits[key]
+            out["per_group"][key[1] or "default"] = {
+                n: dict(_quantiles(fit["x"][:, fit["names"].index(n)]), unit=_UNITS.get(n, "")) for n in own}
+        main = max(keys, key=lambda k: len(fits[k]["mu_mean"]))
+        out["values"] = out["per_group"][main[1] or "default"]
+        out["words"] = "; ".join((f"{g} cable: " if len(keys) > 1 else "") + _words(effect, v)
+                                 for g, v in out["per_group"].items())
+        return out
+    for n in own:
+        per = {}
+        for key in keys:
+            v = fits[key]["x"][:, fits[key]["names"].index(n)]
+            per[key[1]] = {"mean": float(v.mean()), "sd": float(v.std()), **_quantiles(v)}
+        out["values"][n] = dict(_combined(per), unit=_UNITS.get(n, ""))
+        for t, v in per.items():
+            out["per_test"].setdefault(t, {})[n] = {k: v[k] for k in ("median", "q05", "q95")}
+    out["words"] = _words(effect, out["values"])
+    return out
+
+
+def _words(effect: str, v: dict) -> str:
+    def iv(name, scale=1.0, fmt="{:.3g}"):
+        d = v[name]
+        return (f"{fmt.format(d['median'] * scale)} [{fmt.format(d['q05'] * scale)}, "
+                f"{fmt.format(d['q95'] * scale)}]")
+    if effect == "sensor_delay":
+        return (f"phase lags grow linearly with frequency: a {iv('delay_s', 1e3)} ms delay between the force "
+                "and displacement channels (90 % interval)")
+    if effect == "fixture_mass":
+        return (f"the stiffness drops by omega^2 times {iv('fixture_mass_kg', 1e3, '{:.0f}')} g: a mass on the "
+                "table that the empty-table calibration did not cancel")
+    if effect == "viscous_damping":
+        return (f"the loss factor grows with frequency: a viscous part of {iv('beta_viscous')} at 10 Hz "
+                "(proportional to f) on top of the hysteretic one")
+    if effect == "asymmetric_damping":
+        return f"the arms damp differently: loss factor {iv('beta1')} on arm 1 (mass 1), {iv('beta2')} on arm 2"
+    if effect == "base_rocking":
+        return (f"the table rotates as it moves: {iv('rocking_rad_per_m')} mrad of tilt per mm of vertical "
+                "motion")
+    if effect == "frequency_dependent_stiffness":
+        return (f"the cable's EJ changes with frequency as (f / 10 Hz)^s, s = {iv('ej_exponent')}: "
+                "a viscoelastic cable")
+    if effect == "strand_slip":
+        return (f"the cable's wires slip at large curvature: EJ falls from {iv('EJ_stick')} N m^2 (stuck) to "
+                f"{iv('EJ_slip')} N m^2 (slipping), half-way at a curvature amplitude of "
+                f"{iv('chi_slip', 1e3)} x 10^-3 /m, and friction adds up to {iv('beta_friction')} to the loss "
+                f"factor {iv('beta_material')} of the stuck cable; one law for every amplitude")
+    return ""
+
+
+def _summary(effect, fits, keys, tests, likes, base_i, config, bands) -> dict:
+    """Before/after numbers of one model: ELPD, misfit in the bands, coverage."""
+    mu_mean, mu_var = {}, {}
+    for key in keys:
+        fit = fits[key]
+        joint = effect != "baseline" and EXTENSIONS[effect].joint
+        ts = [t for t in tests if _group(t) == key[1]] if joint else [key[1]]
+        for t, m, v in zip(ts, fit["mu_mean"], fit["mu_var"]):
+            mu_mean[t], mu_var[t] = m, v
+    z, thr, coverage = _check(likes, [mu_mean[t] for t in tests], [mu_var[t] for t in tests], config.alpha)
+    elpd_i = _pointwise(fits, keys, tests, effect)
+    out = {"effect": effect, "elpd": float(elpd_i.sum()),
+           "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i, ddof=1))),
+           "coverage_90": coverage,
+           "lines_off": int(sum(np.sum(np.abs(zt) > th) for zt, th in zip(z, thr))),
+           "n_lines": int(sum(zt.size for zt in z)),
+           "rms_z": float(np.sqrt(np.mean(np.concatenate([zt.ravel() for zt in z]) ** 2))),
+           "band_rms_z": _band_rms(bands, tests, z),
+           "converged": all(fits[k]["converged"] for k in keys)}
+    if effect != "baseline":
+        d, se = _compare(base_i, elpd_i)
+        out.update(delta_elpd=d, se=se)
+    return out, z, thr, elpd_i
+
+
+def _pointwise(fits, keys, tests, effect) -> np.ndarray:
+    """PSIS-LOO pointwise ELPD of a model, runs of all tests in test order."""
+    parts = {}
+    for key in keys:
+        e = _elpd(fits[key])
+        if effect != "baseline" and EXTENSIONS[effect].joint:
+            ts = [t for t in tests if _group(t) == key[1]]
+            sizes = [fits[key]["_runs"][t] for t in ts]
+            for t, piece in zip(ts, np.split(e, np.cumsum(sizes)[:-1])):
+                parts[t] = piece
+        else:
+            parts[key[1]] = e
+    return np.concatenate([parts[t] for t in tests])
+
+
+def _likes(damper, bench, tests, effect):
+    out = []
+    for t in tests:
+        cleaned = remove_outlier_runs(bench.test(damper.name, t))
+        data = cleaned.data
+        noise = noise_model(data)
+        out.append(TestLikelihood(damper, extension_prior(effect, damper), data.freq_hz, data.magnitude,
+                                  data.phase_deg, noise.sigma_logmag, noise.sigma_phase,
+                                  model=model_for(effect, data.amplitude_mm_pp),
+                                  amplitude_mm_pp=data.amplitude_mm_pp))
+    return out
+
+
+def _jobs(effect, damper, bench, tests, ss, config):
+    """Fit jobs of one model: one per test, or one per cable state for a joint extension."""
+    likes = _likes(damper, bench, tests, effect)
+    if effect != "baseline" and EXTENSIONS[effect].joint:
+        jobs = []
+        for g in sorted({_group(t) for t in tests}):
+            members = [lk for t, lk in zip(tests, likes) if _group(t) == g]
+            amp = np.concatenate([lk.amplitude_mm_pp for lk in members])
+            like = JointLikelihood(members, extension_prior(effect, damper), model_for(effect, amp))
+            jobs.append(((effect, g), like, ss.spawn(1)[0], config))
+        return jobs, likes
+    return [((effect, t), lk, s, config) for t, lk, s in zip(tests, likes, ss.spawn(len(tests)))], likes
+
+
+def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: DiagnoseConfig = DiagnoseConfig(),
+             progress: bool = True, effects=None) -> dict:
+    """Locate, name, model and show the physics a damper's recordings have and the model lacks.
+
+    Parameters
+    ----------
+    damper : Damper
+    bench : BenchData
+    tests : sequence of str, optional
+        Test labels (default: all of the damper's tests).
+    seed : int
+        Seeds every fit (through ``numpy.random.SeedSequence``): the same seed, the same numbers.
+    config : DiagnoseConfig
+    progress : bool
+        Progress lines on stderr.
+    effects : sequence of str, optional
+        Restrict the catalogue (default: all of :data:`sbcal.extensions.EXTENSIONS`).
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``verdict``, ``ranking``, ``bands``, ``parameters``, ``before``, ``after``, and
+        ``statistics``, ``screen``, ``per_test``, ``rule``, ``settings`` (see ``docs/diagnose.md``).
+    """
+    t0 = time.perf_counter()
+    available = bench.tests(damper.name)
+    tests = list(available if tests is None else tests)
+    for t in tests:
+        if t not in available:
+            raise InputError(f"{bench.source}: damper {damper.name!r} has no test {t!r} (has: {', '.join(available)})")
+    if not tests:
+        raise InputError(f"{bench.source}: no tests for damper {damper.name!r}")
+    catalogue = list(EXTENSIONS if effects is None else effects)
+    for e in catalogue:
+        if e not in EXTENSIONS:
+            raise InputError(f"unknown effect {e!r}; known: {', '.join(EXTENSIONS)}")
+    show = _Progress(f"diagnose {damper.name}", progress)
+    root = np.random.SeedSequence(seed)
+    seqs = dict(zip(["baseline"] + list(EXTENSIONS), root.spawn(len(EXTENSIONS) + 1)))
+
+    # 1-2. baseline and locate
+    show(f"baseline: {len(tests)} test(s), per-test fits")
+    jobs, likes = _jobs("baseline", damper, bench, tests, seqs["baseline"], config)
+    fits = _run_jobs(jobs, config.workers, show, "baseline")
+    base_fits = {k[1]: v for k, v in fits.items()}
+    base_keys = [("baseline", t) for t in tests]
+    z0_, thr0, _ = _check(likes, [base_fits[t]["mu_mean"][0] for t in tests],
+                          [base_fits[t]["mu_var"][0] for t in tests],
+                          config.alpha)
+    bands = _bands(tests, likes, z0_, thr0)
+    statistics = _statistics(damper, tests, likes, base_fits, z0_)
+    screen = _screen(statistics, config, tests)
+    base_i = _pointwise(fits, base_keys, tests, "baseline")
+    before, _, _, _ = _summary("baseline", fits, base_keys, tests, likes, base_i, config, bands)
+    show(f"located {len(bands)} band(s), {before['lines_off']} of {before['n_lines']} lines off")
+
+    # 3. name: refit the screened candidates (all of them only if the baseline fails its check)
+    candidates = [e for e in catalogue if screen[e]["kept"]] if bands else []
+    ranking, summaries, zs = [], {}, {}
+    all_jobs = []
+    for e in candidates:
+        jobs_e, _ = _jobs(e, damper, bench, tests, seqs[e], config)
+        all_jobs += jobs_e
+    if all_jobs:
+        show(f"refitting {len(candidates)} candidate(s): {', '.join(candidates)}")
+        fits.update(_run_jobs(all_jobs, config.workers, show, "candidates"))
+    runs_per_test = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
+    for key in fits:
+        fits[key]["_runs"] = runs_per_test
+    keys_of = {e: [k for k in fits if k[0] == e] for e in candidates}
+    for e in candidates:
+        s, z, thr, _ = _summary(e, fits, keys_of[e], tests, likes, base_i, config, bands)
+        s["explained"] = (1 - _band_sq(bands, tests, z) / _band_sq(bands, tests, z0_)) if bands else 0.0
+        summaries[e], zs[e] = s, z
+        ranking.append({"effect": e, "delta_elpd": s["delta_elpd"], "se": s["se"], "explained": s["explained"]})
+    ranking.sort(key=lambda r: -r["delta_elpd"])
+
+    # 4. verdict
+    if not bands:
+        verdict = "none"
+    elif ranking and ranking[0]["delta_elpd"] > config.clear_se * ranking[0]["se"] \
+            and ranking[0]["explained"] >= config.min_explained:
+        verdict = ranking[0]["effect"]
+    else:
+        verdict = "unexplained"
+    shown = verdict if verdict in EXTENSIONS else (ranking[0]["effect"] if ranking else None)
+    after = summaries[shown] if shown else before
+    per_test = []
+    if shown:
+        after_i = _pointwise(fits, keys_of[shown], tests, shown)
+        start = 0
+        for t, zb, za in zip(tests, z0_, zs[shown]):
+            n = runs_per_test[t]
+            d = after_i[start:start + n] - base_i[start:start + n]
+            start += n
+            per_test.append({"test": t, "delta_elpd": float(d.sum()),
+                             "se": float(np.sqrt(n * np.var(d, ddof=1))) if n > 1 else 0.0,
+                             "rms_z_before": float(np.sqrt(np.mean(zb ** 2))),
+                             "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
+    result = {
+        "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict,
+        "rule": (f"none if no line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
+                 f"{config.alpha:g} over all lines); else the best extension if delta_elpd > {config.clear_se:g} se "
+                 f"and it removes >= {config.min_explained:.0%} of the squared misfit in the bands; else unexplained"),
+        "ranking": ranking,
+        "bands": [{k: b[k] for k in ("test", "quantity", "f_lo", "f_hi", "max_abs_z")} for b in bands],
+        "parameters": _parameters(shown, fits, keys_of[shown], base_fits[tests[0]]["names"]) if shown else {},
+        "before": before,
+        "after": after,
+        "per_test": per_test,
+        "residuals": {t: {"freq_hz": lk.freq_hz.tolist(), "z_before": zb.tolist(),
+                          "z_after": (zs[shown][i] if shown else zb).tolist()}
+                      for i, (t, lk, zb) in enumerate(zip(tests, likes, z0_))},
+        "statistics": statistics,
+        "screen": screen,
+        "settings": asdict(config),
+        "versions": versions(),
+        "wall_s": time.perf_counter() - t0,
+    }
+    show(f"verdict: {verdict} ({result['wall_s']:.0f} s)")
+    return result
