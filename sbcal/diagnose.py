@@ -73,9 +73,8 @@ class DiagnoseConfig:
         admits the extensions without a specific signature, or curvature correlation for strand slip.
     draws : int
         Posterior draws kept per fit (over all ensembles).
-    n_ensembles, tau_factor, max_steps, joint_max_steps : int, float, int, int
-        emcee: independent ensembles per fit, run length in autocorrelation times, step cap (of a
-        per-test fit, of a joint fit: its parameters are more correlated).
+    n_ensembles, tau_factor, max_steps : int, float, int
+        emcee: independent ensembles per fit, run length in autocorrelation times, step cap.
     workers : int
         Processes (fits run in parallel).
     """
@@ -90,13 +89,12 @@ class DiagnoseConfig:
     n_ensembles: int = 2
     tau_factor: float = 20.0
     max_steps: int = 3000
-    joint_max_steps: int = 8000
     workers: int = field(default_factory=lambda: min(2, os.cpu_count() or 1))
 
-    def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
+    def sampler(self, ndim: int) -> SamplerConfig:
         return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), n_ensembles=self.n_ensembles,
                              tau_factor=self.tau_factor, burn_fraction=0.3, check_every=100,
-                             max_steps=self.joint_max_steps if joint else self.max_steps, max_draws=max(1, self.draws // self.n_ensembles), workers=1)
+                             max_steps=self.max_steps, max_draws=max(1, self.draws // self.n_ensembles), workers=1)
 
 
 # --- fits --------------------------------------------------------------------------------------
@@ -148,8 +146,12 @@ def _start_joint(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
 
 
 def _fit_job(job):
-    """One posterior (a test's, or a joint one): start, emcee ensembles, summaries. Module-level: picklable."""
-    key, like, ss, config = job
+    """Some emcee ensembles of one posterior (a test's, or a joint one). Module-level: picklable.
+
+    Every part of a fit computes the same start from the same seed, so a joint fit can run its
+    ensembles in parallel processes and the draws do not depend on the number of workers.
+    """
+    key, like, ss, config, ensembles = job
     t0 = time.perf_counter()
     prior = like.prior
     seqs = ss.spawn(config.n_ensembles + 1)
@@ -159,23 +161,28 @@ def _fit_job(job):
     else:
         fit = fit_ga(like, seed=rng, population=40, generations=200, cost="likelihood")
         z0 = prior.to_z(fit.x[None])[0]
-    sc = config.sampler(prior.ndim, joint=isinstance(like, JointLikelihood))
-    runs = [_run_ensemble((like, z0, s, sc.nwalkers + sc.nwalkers % 2, sc, None, e)) for e, s in enumerate(seqs[1:])]
+    sc = config.sampler(prior.ndim)
+    runs = [_run_ensemble((like, z0, seqs[1 + e], sc.nwalkers + sc.nwalkers % 2, sc, None, e)) for e in ensembles]
+    return key, ensembles, runs, time.perf_counter() - t0
+
+
+def _posterior(like, runs, wall_s) -> dict:
+    """Draws of a fit's ensembles -> what the diagnosis needs: model curves, pointwise log-likelihood."""
     n = min(len(r[0]) for r in runs)
     x = np.concatenate([r[0][:n] for r in runs])
     likes = like.likes if isinstance(like, JointLikelihood) else [like]
     mus = like.predict(x) if isinstance(like, JointLikelihood) else [like.predict(x)]
     mu_mean, mu_var = [], []
-    for lk, mu in zip(likes, mus):
+    for mu in mus:
         # phase draws about the first draw, so a wrap cannot corrupt the mean
         d = mu.copy()
         d[1] = mu[1, :1] + np.remainder(mu[1] - mu[1, :1] + np.pi, 2 * np.pi) - np.pi
         mu_mean.append(d.mean(axis=1))
         mu_var.append(d.var(axis=1))
     ll = np.concatenate([lk.pointwise_log_likelihood(x, mu) for lk, mu in zip(likes, mus)], axis=1)
-    return key, dict(x=x, names=prior.names, pointwise=ll, mu_mean=mu_mean, mu_var=mu_var,
-                     converged=all(r[7] for r in runs), tau=float(max(np.max(r[3]) for r in runs)),
-                     steps=int(max(r[4] for r in runs)), wall_s=time.perf_counter() - t0)
+    return dict(x=x, names=like.prior.names, pointwise=ll, mu_mean=mu_mean, mu_var=mu_var,
+                converged=all(r[7] for r in runs), tau=float(max(np.max(r[3]) for r in runs)),
+                steps=int(max(r[4] for r in runs)), wall_s=wall_s)
 
 
 class _Progress:
@@ -188,23 +195,41 @@ class _Progress:
             sys.stderr.flush()
 
 
-def _run_jobs(jobs, workers, show, what):
-    """Run fit jobs (in processes when workers > 1), reporting each as it finishes."""
-    out = {}
-    if workers > 1 and len(jobs) > 1:
+def _run_jobs(jobs, config, show, what):
+    """Run fits (in processes when ``config.workers > 1``), reporting each as it finishes.
+
+    ``jobs``: ``(key, like, seed_sequence, config)``; a joint fit's ensembles run as separate parts.
+    """
+    parts = []
+    for key, like, ss, cfg in jobs:
+        if isinstance(like, JointLikelihood):
+            parts += [(key, like, ss, cfg, (e,)) for e in range(cfg.n_ensembles)]
+        else:
+            parts.append((key, like, ss, cfg, tuple(range(cfg.n_ensembles))))
+    likes = {key: like for key, like, _, _ in jobs}
+    got, done = {}, 0
+
+    def collect(key, ensembles, runs, wall):
+        nonlocal done
+        got.setdefault(key, []).append((ensembles, runs, wall))
+        if sum(len(e) for e, _, _ in got[key]) == config.n_ensembles:
+            done += 1
+            show(f"{what}: {done}/{len(jobs)} fits done ({key[0]} {key[1]}, {max(w for _, _, w in got[key]):.1f} s)")
+
+    if config.workers > 1 and len(parts) > 1:
         from concurrent.futures import as_completed
 
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = [pool.submit(_fit_job, j) for j in jobs]
-            for i, f in enumerate(as_completed(futures)):
-                key, res = f.result()
-                out[key] = res
-                show(f"{what}: {i + 1}/{len(jobs)} fits done ({key[0]} {key[1]}, {res['wall_s']:.1f} s)")
+        with ProcessPoolExecutor(max_workers=config.workers) as pool:
+            for f in as_completed([pool.submit(_fit_job, p) for p in parts]):
+                collect(*f.result())
     else:
-        for i, j in enumerate(jobs):
-            key, res = _fit_job(j)
-            out[key] = res
-            show(f"{what}: {i + 1}/{len(jobs)} fits done ({key[0]} {key[1]}, {res['wall_s']:.1f} s)")
+        for p in parts:
+            collect(*_fit_job(p))
+    out = {}
+    for key, pieces in got.items():
+        pieces.sort(key=lambda p: p[0])
+        runs = [r for _, rs, _ in pieces for r in rs]
+        out[key] = _posterior(likes[key], runs, max(w for _, _, w in pieces))
     return out
 
 
@@ -534,7 +559,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     # 1-2. baseline and locate
     show(f"baseline: {len(tests)} test(s), per-test fits")
     jobs, likes = _jobs("baseline", damper, bench, tests, seqs["baseline"], config)
-    fits = _run_jobs(jobs, config.workers, show, "baseline")
+    fits = _run_jobs(jobs, config, show, "baseline")
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]
     z0_, thr0, _ = _check(likes, [base_fits[t]["mu_mean"][0] for t in tests],
@@ -556,7 +581,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         all_jobs += jobs_e
     if all_jobs:
         show(f"refitting {len(candidates)} candidate(s): {', '.join(candidates)}")
-        fits.update(_run_jobs(all_jobs, config.workers, show, "candidates"))
+        fits.update(_run_jobs(all_jobs, config, show, "candidates"))
     runs_per_test = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
     for key in fits:
         fits[key]["_runs"] = runs_per_test

@@ -1,0 +1,214 @@
+"""sbcal diagnose: the extension models, the likelihoods it compares with, and a fast subset of
+the confusion matrix of ``benchmarks/diagnose_matrix.py`` (another geometry, seed and effect sizes
+than the ones the rules were developed on)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sbcal.bench import load_bench, noise_model, remove_outlier_runs, write_bench
+from sbcal.cli import main
+from sbcal.damper import resolve_damper
+from sbcal.diagnose import DiagnoseConfig, _bands, diagnose
+from sbcal.extensions import EXTENSIONS, SlipModel, model_for
+from sbcal.fem import STANDARD_GRID_HZ, dynamic_stiffness
+from sbcal.likelihood import JointLikelihood, TestLikelihood
+from sbcal.priors import extension_prior, load_prior
+from sbcal.virtual_bench import BenchConfig, response
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from diagnose_matrix import run_case  # noqa: E402
+
+F = STANDARD_GRID_HZ
+BASE = dict(EJ=np.array([9.0, 14.0]), beta=np.array([0.3, 0.2]), a1=np.array([0.028, 0.029]),
+            a2=np.array([-0.0154, -0.015]))
+FAST = DiagnoseConfig(draws=200, max_steps=1500)
+QUICK_TESTS = ("0.2-0.2", "1-1", "2-2")
+
+
+@pytest.fixture(scope="module")
+def damper():
+    return resolve_damper("damper2")
+
+
+def test_catalogue_ids_are_the_virtual_benchs():
+    from sbcal.virtual_bench import EFFECTS
+
+    assert tuple(EXTENSIONS) == EFFECTS
+    for e in EXTENSIONS:
+        names = extension_prior(e, resolve_damper("damper1")).names
+        assert "sigma_mag" not in names and len(set(names)) == len(names)
+
+
+@pytest.mark.parametrize("effect, extra, bench_effect", [
+    ("fixture_mass", {"fixture_mass_kg": 0.07}, {"fixture_mass": 0.07}),
+    ("sensor_delay", {"delay_s": 3e-4}, {"sensor_delay": 3e-4}),
+    ("base_rocking", {"rocking_rad_per_m": 1.3}, {"base_rocking": 1.3}),
+])
+def test_extension_models_match_the_virtual_bench(damper, effect, extra, bench_effect):
+    """Where the bench's effect has the extension's form, the two agree to rounding."""
+    p = {k: v[0] for k, v in BASE.items()}
+    ours = model_for(effect)(damper, F, **p, **extra)
+    theirs = response(damper, F, 1.0, p, bench_effect)
+    np.testing.assert_allclose(ours, theirs, rtol=1e-10)
+
+
+def test_viscous_and_asymmetric_extensions(damper):
+    p = {k: v[0] for k, v in BASE.items()}
+    # bench: beta f / f_ref, purely viscous; the extension's beta_viscous is the loss factor at 10 Hz
+    ours = model_for("viscous_damping")(damper, F, **dict(p, beta=0.0), beta_viscous=0.3 * 10 / 15)
+    np.testing.assert_allclose(ours, response(damper, F, 1.0, p, {"viscous_damping": 15.0}), rtol=1e-10)
+    q = {k: v for k, v in p.items() if k != "beta"}
+    ours = model_for("asymmetric_damping")(damper, F, **q, beta1=0.4, beta2=0.2)
+    np.testing.assert_allclose(ours, response(damper, F, 1.0, p, {"asymmetric_damping": 0.2}), rtol=1e-10)
+
+
+def test_extensions_reduce_to_the_model_when_off(damper):
+    ref = dynamic_stiffness(damper, F, **BASE)
+    off = {"fixture_mass": {"fixture_mass_kg": 0.0}, "sensor_delay": {"delay_s": 0.0},
+           "viscous_damping": {"beta_viscous": 0.0}, "base_rocking": {"rocking_rad_per_m": 0.0},
+           "frequency_dependent_stiffness": {"ej_exponent": 0.0}}
+    for e, extra in off.items():
+        np.testing.assert_allclose(model_for(e)(damper, F, **BASE, **extra), ref, rtol=1e-10, err_msg=e)
+
+
+def test_strand_slip_model_limits_and_fixed_point(damper):
+    slip = dict(EJ_slip=5.0, EJ_stick=40.0, slip_exponent=1.4, beta_material=0.05, beta_friction=0.3)
+    m = SlipModel(np.full(F.size, 1.0))
+    # a transition curvature far above any reached: the stuck cable, a linear model at EJ_stick
+    stuck = m(damper, F, chi_slip=1e6, **slip)
+    np.testing.assert_allclose(stuck, dynamic_stiffness(damper, F, EJ=40.0, beta=0.05), rtol=1e-8)
+    # far below: the slipping cable
+    slipping = m(damper, F, chi_slip=1e-12, **slip)
+    np.testing.assert_allclose(slipping, dynamic_stiffness(damper, F, EJ=5.0, beta=0.35), rtol=1e-6)
+    # in between the returned state is a fixed point of the law, and larger amplitudes soften more
+    ej, beta, rms = m.state(damper, F, chi_slip=3e-3, **slip)
+    g = 1 / (1 + (rms / 3e-3) ** 1.4)
+    np.testing.assert_allclose(ej, 5.0 + 35.0 * g, rtol=1e-6)
+    np.testing.assert_allclose(beta, 0.05 + 0.3 * (1 - g), atol=1e-6)
+    ej_big, _, _ = SlipModel(np.full(F.size, 2.0)).state(damper, F, chi_slip=3e-3, **slip)
+    assert np.all(ej_big <= ej + 1e-9) and np.mean(ej_big) < np.mean(ej)
+    assert np.all(np.isnan(m(damper, F, chi_slip=3e-3, **dict(slip, EJ_slip=50.0))))
+
+
+def _like(damper, bench, test, prior, model=None):
+    data = remove_outlier_runs(bench.test(damper.name, test)).data
+    nm = noise_model(data)
+    return TestLikelihood(damper, prior, data.freq_hz, data.magnitude, data.phase_deg, nm.sigma_logmag,
+                          nm.sigma_phase, model=model, amplitude_mm_pp=data.amplitude_mm_pp)
+
+
+@pytest.fixture(scope="module")
+def small_bench(tmp_path_factory, damper):
+    from sbcal.virtual_bench import record
+
+    cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.25}, runs=8)
+    path = tmp_path_factory.mktemp("diag") / "b.csv"
+    write_bench(record(damper, cfg, ["0.5-0.5", "1-1"], rng=np.random.default_rng(11)), path)
+    return load_bench(path)
+
+
+def test_noise_only_likelihood_is_the_t_and_normal_densities(damper, small_bench):
+    from scipy import stats
+
+    like = _like(damper, small_bench, "1-1", extension_prior("baseline", damper))
+    x = np.array([[0.25, damper.a1, damper.a2, 9.0]])
+    mu = like.predict(x)
+    r = like._residual(mu)[:, 0]
+    scale = np.sqrt(like.sigma ** 2 / like.n)
+    expect = stats.t.logpdf(r, like.nu, scale=scale).sum()
+    assert like.log_likelihood(x)[0] == pytest.approx(expect, rel=1e-10)
+    # without a shared discrepancy the runs are independent given theta: log p(y_r | y_-r) = log p(y_r)
+    dev = like.y - mu[:, 0][:, None, :]
+    dev[1] = np.remainder(dev[1] + np.pi, 2 * np.pi) - np.pi
+    per_run = stats.norm.logpdf(dev, scale=like.sigma[:, None, :]).sum(axis=(0, 2))
+    np.testing.assert_allclose(like.pointwise_log_likelihood(x)[0], per_run, rtol=1e-10)
+    # and the default prior (with model-error scales) still gives the discrepancy likelihood
+    with_error = _like(damper, small_bench, "1-1", load_prior("theta1", damper))
+    assert with_error._ierr is not None and like._ierr is None
+
+
+def test_joint_likelihood_of_one_test_is_the_test_likelihood(damper, small_bench):
+    prior = extension_prior("strand_slip", damper)
+    amp = small_bench.test(damper.name, "1-1").amplitude_mm_pp
+    single = _like(damper, small_bench, "1-1", prior, model=SlipModel(amp))
+    joint = JointLikelihood([single], prior, SlipModel(amp))
+    z = prior.sample(np.random.default_rng(0), 6)
+    np.testing.assert_allclose(joint(z), single(z), rtol=1e-12)
+    x = prior.to_natural(z)
+    np.testing.assert_allclose(joint.pointwise_log_likelihood(x), single.pointwise_log_likelihood(x), rtol=1e-12)
+
+
+def test_bands_join_neighbouring_off_lines():
+    class L:
+        freq_hz = np.arange(10.0) + 4
+
+    z = np.zeros((2, 10))
+    z[0, [1, 2, 4, 8]] = [5, -6, 7, 9]  # 1, 2 and 4 join (a gap of one line), 8 alone
+    bands = _bands(["t"], [L()], [z], [np.full(10, 4.0)])
+    assert [(b["quantity"], b["f_lo"], b["f_hi"]) for b in bands] == [("magnitude", 5, 8), ("magnitude", 12, 12)]
+    assert bands[0]["max_abs_z"] == 7
+
+
+# --- the fast subset of the confusion matrix ----------------------------------------------------
+
+@pytest.mark.parametrize("case, verdict", [("none", "none"), ("sensor_delay", "sensor_delay"),
+                                           ("fixture_mass", "fixture_mass")])
+def test_diagnose_names_the_concealed_effect(tmp_path, damper, case, verdict):
+    r = run_case(damper, case, 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST)
+    assert r["verdict"] == verdict, r["ranking"]
+    if verdict == "none":
+        assert r["bands"] == [] and r["before"]["lines_off"] == 0
+    else:
+        best = r["ranking"][0]
+        assert best["effect"] == verdict and best["delta_elpd"] > 4 * best["se"]
+        assert r["after"]["rms_z"] < r["before"]["rms_z"] and r["after"]["lines_off"] < r["before"]["lines_off"]
+
+
+def test_diagnose_delay_value_and_words(tmp_path, damper):
+    r = run_case(damper, "sensor_delay", 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST,
+                 effects=["sensor_delay", "fixture_mass"])
+    v = r["parameters"]["values"]["delay_s"]
+    assert v["q05"] < 3e-4 < v["q95"] or abs(v["median"] - 3e-4) < 0.05 * 3e-4
+    assert "ms delay" in r["parameters"]["words"]
+
+
+def test_fixture_resonance_is_unexplained_with_its_band(tmp_path, damper):
+    r = run_case(damper, "fixture_resonance", 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST)
+    assert r["verdict"] == "unexplained", r["ranking"]
+    assert any(b["f_lo"] - 2 <= 31 <= b["f_hi"] + 2 for b in r["bands"])
+
+
+def test_same_seed_same_diagnosis(tmp_path, damper, small_bench):
+    a = diagnose(damper, small_bench, seed=4, progress=False, config=FAST)
+    b = diagnose(damper, small_bench, seed=4, progress=False, config=FAST)
+    for k in ("verdict", "ranking", "bands", "before", "after", "statistics"):
+        assert a[k] == b[k]
+
+
+# --- CLI ----------------------------------------------------------------------------------------
+
+def test_diagnose_cli_json_contract(tmp_path, capsys, small_bench):
+    out = tmp_path / "diag.json"
+    rc = main(["diagnose", "--damper", "damper2", "--bench", str(small_bench.source), "--seed", "5", "--json",
+               str(out), "--runs", str(tmp_path / "runs"), "--quiet"])
+    assert rc == 0
+    d = json.loads(out.read_text())
+    for k in ("verdict", "ranking", "bands", "parameters", "before", "after"):
+        assert k in d
+    assert d["verdict"] == "none" and d["seed"] == 5 and "numpy" in d["versions"]
+    assert (tmp_path / "runs" / "damper2" / "diagnose.json").is_file()
+    assert "verdict none" in capsys.readouterr().out
+
+
+def test_diagnose_cli_bad_test_label(tmp_path, capsys, small_bench):
+    rc = main(["diagnose", "--damper", "damper2", "--bench", str(small_bench.source), "--tests", "9-9",
+               "--runs", str(tmp_path), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "9-9" in err and "\n" not in err
