@@ -81,7 +81,7 @@ class DiagnoseConfig:
 
     alpha: float = 0.05
     clear_se: float = 4.0
-    min_explained: float = 0.5
+    min_explained: float = 0.8
     screen_t: float = 3.0
     screen_share: float = 0.05
     screen_corr: float = 0.3

@@ -83,7 +83,7 @@ def test_strand_slip_model_limits_and_fixed_point(damper):
     m = SlipModel(np.full(F.size, 1.0))
     # a transition curvature far above any reached: the stuck cable, a linear model at EJ_stick
     stuck = m(damper, F, chi_slip=1e6, **slip)
-    np.testing.assert_allclose(stuck, dynamic_stiffness(damper, F, EJ=40.0, beta=0.05), rtol=1e-8)
+    np.testing.assert_allclose(stuck, dynamic_stiffness(damper, F, EJ=40.0, beta=0.05), rtol=1e-6)
     # far below: the slipping cable
     slipping = m(damper, F, chi_slip=1e-12, **slip)
     np.testing.assert_allclose(slipping, dynamic_stiffness(damper, F, EJ=5.0, beta=0.35), rtol=1e-6)
