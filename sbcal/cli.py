@@ -311,9 +311,9 @@ def _cmd_report(args) -> int:
 
 
 def _add_run(sub):
-    p = sub.add_parser("run", help="the whole job: sample every test of every damper, map, report",
+    p = sub.add_parser("run", help="the whole job: sample every test of every damper, diagnose, map, report",
                        description="Sample every test of the chosen dampers (skipping runs that are up to date), "
-                                   "fit the amplitude map and write the HTML report.")
+                                   "diagnose missing physics, fit the amplitude map and write the HTML report.")
     p.add_argument("--damper", action="append", metavar="NAME|PATH",
                    help="damper (repeatable; default: every damper of the bench file that is bundled)")
     p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
@@ -327,8 +327,13 @@ def _add_run(sub):
 
 
 def _cmd_run(args) -> int:
+    import json
+    from pathlib import Path
+
     from .calibrate import calibrate_tests, is_up_to_date
     from .damper import bundled_dampers, resolve_damper
+    from .diagnose import diagnose
+    from .diagnose import is_up_to_date as is_diagnosed
     from .report import build_report
 
     bench = _bench_for(args)
@@ -345,6 +350,14 @@ def _cmd_run(args) -> int:
               file=sys.stderr)
         calibrate_tests(damper, bench, todo, workers=args.workers, paramset=args.params, seed=args.seed,
                         out=args.runs, command=command)
+        stored = Path(args.runs) / damper.name / "diagnose.json"
+        if is_diagnosed(stored, bench, args.seed):
+            print(f"{damper.name}: diagnosis up to date", file=sys.stderr)
+        else:
+            result = diagnose(damper, bench, seed=args.seed)
+            result["command"] = command
+            _write_json(result, stored)
+        print(f"{damper.name}: missing physics: {json.loads(stored.read_text())['verdict']}")
     index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed, command=command,
                          progress=lambda t: print(t, file=sys.stderr))
     print(f"wrote {index}")

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 from scipy.stats import qmc
 
 from .bench import noise_model, remove_outlier_runs
+from .calibrate import _fingerprint
 from .damper import Damper
 from .errors import InputError
 from .extensions import EXTENSIONS, model_for
@@ -45,7 +46,7 @@ from .priors import extension_prior
 from .runs import loo_pointwise, versions
 from .sampler import SamplerConfig, _run_ensemble
 
-__all__ = ["DiagnoseConfig", "diagnose"]
+__all__ = ["DiagnoseConfig", "diagnose", "is_up_to_date"]
 
 _QUANTITIES = ("magnitude", "phase")
 _LABEL = re.compile(r"^\d+(?:\.\d+)?-\d+(?:\.\d+)?(?:-(.+))?$")
@@ -516,6 +517,20 @@ def _jobs(effect, damper, bench, tests, ss, config):
     return [((effect, t), lk, s, config) for t, lk, s in zip(tests, likes, ss.spawn(len(tests)))], likes
 
 
+def is_up_to_date(path, bench, seed: int, config: DiagnoseConfig = DiagnoseConfig()) -> bool:
+    """True when ``path`` holds a diagnosis of this very bench file (sha256) with this seed and settings."""
+    import json
+    from pathlib import Path
+
+    try:
+        doc = json.loads(Path(path).read_text())
+        same = {k: v for k, v in asdict(config).items() if k != "workers"}
+        return (doc["bench"]["sha256"] == _fingerprint(bench) and doc["seed"] == seed
+                and {k: v for k, v in doc["settings"].items() if k != "workers"} == same)
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
 def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: DiagnoseConfig = DiagnoseConfig(),
              progress: bool = True, effects=None) -> dict:
     """Locate, name, model and show the physics a damper's recordings have and the model lacks.
@@ -617,6 +632,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
                              "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
     result = {
         "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict,
+        "bench": {"path": str(bench.source), "sha256": _fingerprint(bench)},
         "rule": (f"none if no line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
                  f"{config.alpha:g} over all lines); else the best extension if delta_elpd > {config.clear_se:g} se "
                  f"and it removes >= {config.min_explained:.0%} of the squared misfit in the bands; else unexplained"),

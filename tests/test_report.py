@@ -98,3 +98,25 @@ def test_map_on_stored_runs(run_store, tmp_path):
 def test_report_on_missing_store(tmp_path, capsys):
     assert main(["report", "--runs", str(tmp_path / "none"), "-o", str(tmp_path / "r")]) == 2
     assert "no such run store" in capsys.readouterr().err
+
+
+def test_report_shows_the_diagnosis(run_store, tmp_path):
+    """A stored ``sbcal diagnose`` result gets its section: verdict, ranking, before/after, figure."""
+    from sbcal.diagnose import DiagnoseConfig
+    from sbcal.virtual_bench import BenchConfig, record
+
+    d = resolve_damper("damper1")
+    cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.3}, effects={"sensor_delay": 4e-4}, runs=8)
+    path = tmp_path / "delay.csv"
+    write_bench(record(d, cfg, ["0.5-0.5", "1-1"], rng=np.random.default_rng(8)), path)
+    assert main(["diagnose", "--damper", "damper1", "--bench", str(path), "--runs", str(run_store), "--seed", "2",
+                 "--quiet"]) == 0
+    out = tmp_path / "rep"
+    assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    p = _Refs()
+    p.feed(page)
+    assert "damper1: missing physics (sbcal diagnose)" in p.headings
+    assert "Verdict: sensor_delay" in page and "ms delay" in page
+    assert "figures/damper1_diagnosis.png" in p.imgs and (out / "figures/damper1_diagnosis.png").is_file()
+    (run_store / "damper1" / "diagnose.json").unlink()  # the other report tests see the store as before
