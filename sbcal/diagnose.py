@@ -341,7 +341,7 @@ def _statistics(damper, tests, likes, fits, z) -> dict:
     return out
 
 
-def _screen(stat: dict, config: DiagnoseConfig, tests) -> dict:
+def _screen(stat: dict, config: DiagnoseConfig) -> dict:
     """Which extensions the structure statistics admit, and why."""
     out = {}
     for eid, ext in EXTENSIONS.items():
@@ -468,7 +468,8 @@ def _summary(effect, fits, keys, tests, likes, base_i, config, bands) -> dict:
            "n_lines": int(sum(zt.size for zt in z)),
            "rms_z": float(np.sqrt(np.mean(np.concatenate([zt.ravel() for zt in z]) ** 2))),
            "band_rms_z": _band_rms(bands, tests, z),
-           "converged": all(fits[k]["converged"] for k in keys)}
+           "converged": all(fits[k]["converged"] for k in keys),
+           "tau_max": max(fits[k]["tau"] for k in keys), "steps_max": max(fits[k]["steps"] for k in keys)}
     if effect != "baseline":
         d, se = _compare(base_i, elpd_i)
         out.update(delta_elpd=d, se=se)
@@ -582,7 +583,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
                           config.alpha)
     bands = _bands(tests, likes, z0_, thr0)
     statistics = _statistics(damper, tests, likes, base_fits, z0_)
-    screen = _screen(statistics, config, tests)
+    screen = _screen(statistics, config)
     base_i = _pointwise(fits, base_keys, tests, "baseline")
     before, _, _, _ = _summary("baseline", fits, base_keys, tests, likes, base_i, config, bands)
     show(f"located {len(bands)} band(s), {before['lines_off']} of {before['n_lines']} lines off")

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -212,3 +211,17 @@ def test_diagnose_cli_bad_test_label(tmp_path, capsys, small_bench):
                "--runs", str(tmp_path), "--quiet"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "9-9" in err and "\n" not in err
+
+
+@pytest.mark.slow
+def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_better():
+    """The README's claim: on the bundled damper1 data the verdict is strand_slip, and one slip law
+    for all amplitudes beats each test's own constant-EJ fit, test by test."""
+    from sbcal.bench import default_bench_path
+
+    r = diagnose(resolve_damper("damper1"), load_bench(default_bench_path()), seed=0, progress=False)
+    assert r["verdict"] == "strand_slip", r["ranking"]
+    assert r["statistics"]["amplitude_trend"]["default"]["slope"] < 0  # EJ falls with amplitude
+    for row in r["per_test"]:
+        assert row["delta_elpd"] > 4 * row["se"] and row["rms_z_after"] < row["rms_z_before"], row
+    assert r["after"]["coverage_90"] > r["before"]["coverage_90"]
