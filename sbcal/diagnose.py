@@ -74,8 +74,9 @@ class DiagnoseConfig:
         admits the extensions without a specific signature, or curvature correlation for strand slip.
     draws : int
         Posterior draws kept per fit (over all ensembles).
-    n_ensembles, tau_factor, max_steps : int, float, int
-        emcee: independent ensembles per fit, run length in autocorrelation times, step cap.
+    n_ensembles, tau_factor, max_steps, joint_max_steps : int, float, int, int
+        emcee: independent ensembles per fit, run length in autocorrelation times, step cap of a
+        per-test fit and of a joint one (the slip law's parameters are correlated: tau ~ 170 steps).
     workers : int
         Processes (fits run in parallel).
     """
@@ -90,12 +91,13 @@ class DiagnoseConfig:
     n_ensembles: int = 2
     tau_factor: float = 20.0
     max_steps: int = 3000
+    joint_max_steps: int = 6000
     workers: int = field(default_factory=lambda: min(2, os.cpu_count() or 1))
 
-    def sampler(self, ndim: int) -> SamplerConfig:
+    def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
         return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), n_ensembles=self.n_ensembles,
                              tau_factor=self.tau_factor, burn_fraction=0.3, check_every=100,
-                             max_steps=self.max_steps, max_draws=max(1, self.draws // self.n_ensembles), workers=1)
+                             max_steps=self.joint_max_steps if joint else self.max_steps, max_draws=max(1, self.draws // self.n_ensembles), workers=1)
 
 
 # --- fits --------------------------------------------------------------------------------------
@@ -162,7 +164,7 @@ def _fit_job(job):
     else:
         fit = fit_ga(like, seed=rng, population=40, generations=200, cost="likelihood")
         z0 = prior.to_z(fit.x[None])[0]
-    sc = config.sampler(prior.ndim)
+    sc = config.sampler(prior.ndim, joint=isinstance(like, JointLikelihood))
     runs = [_run_ensemble((like, z0, seqs[1 + e], sc.nwalkers + sc.nwalkers % 2, sc, None, e)) for e in ensembles]
     return key, ensembles, runs, time.perf_counter() - t0
 

@@ -27,7 +27,7 @@ from diagnose_matrix import run_case  # noqa: E402
 F = STANDARD_GRID_HZ
 BASE = dict(EJ=np.array([9.0, 14.0]), beta=np.array([0.3, 0.2]), a1=np.array([0.028, 0.029]),
             a2=np.array([-0.0154, -0.015]))
-FAST = DiagnoseConfig(draws=200, max_steps=1500)
+FAST = DiagnoseConfig(draws=200, max_steps=1500, joint_max_steps=2000)
 QUICK_TESTS = ("0.2-0.2", "1-1", "2-2")
 
 
