@@ -145,32 +145,34 @@ def _cv_figure(bench, damper: str, tests, path: Path) -> str:
 
 
 def _diagnosis_figure(doc, path: Path) -> str:
-    """Standardised residuals of every test before (grey) and after (colour) the chosen extension."""
+    """Standardised residuals of every test (rows) before (grey) and after (red) the chosen extension."""
     plt = _plt()
     res = doc["residuals"]
     tests = list(res)
-    fig, axes = plt.subplots(2, len(tests), figsize=(2.2 * len(tests) + 1, 4.4), sharey="row", squeeze=False)
+    fig, axes = plt.subplots(len(tests), 2, figsize=(10, 1.5 * len(tests) + 1.0), sharex=True, squeeze=False)
     after = doc["after"]["effect"]
-    for j, t in enumerate(tests):
+    for i, t in enumerate(tests):
         f = np.asarray(res[t]["freq_hz"])
         for q, name in enumerate(("magnitude", "phase")):
-            ax = axes[q, j]
+            ax = axes[i, q]
             zb, za = np.asarray(res[t]["z_before"][q]), np.asarray(res[t]["z_after"][q])
-            ax.plot(f, np.clip(zb, -50, 50), color="0.6", lw=1, label="per-test model")
-            if after != "baseline":
-                ax.plot(f, np.clip(za, -50, 50), color="C3", lw=1.2, label=after)
-            ax.axhspan(-3, 3, color="C2", alpha=0.12, lw=0)
             for b in doc["bands"]:
                 if b["test"] == t and b["quantity"] == name:
-                    ax.axvspan(b["f_lo"] - 0.25, b["f_hi"] + 0.25, color="C1", alpha=0.25, lw=0)
-            ax.set_xscale("log")
-            ax.set_title(f"{t} {name}", fontsize=8)
-            if j == 0:
-                ax.set_ylabel("z (clipped at ±50)")
-            if q == 1:
-                ax.set_xlabel("f [Hz]")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"{doc['damper']}: residual of the run mean / its predictive sd; orange: located bands")
+                    ax.axvspan(b["f_lo"] - 0.25, b["f_hi"] + 0.25, color="C1", alpha=0.2, lw=0)
+            ax.axhspan(-3, 3, color="C2", alpha=0.15, lw=0)
+            ax.plot(f, np.clip(zb, -50, 50), color="0.5", lw=1, marker=".", ms=3, label="per-test model")
+            if after != "baseline":
+                ax.plot(f, np.clip(za, -50, 50), color="C3", lw=1.2, marker=".", ms=3, label=after)
+            ax.set_ylim(-55, 55)
+            ax.text(0.01, 0.95, f"{t} {name}", transform=ax.transAxes, va="top", fontsize=8,
+                    bbox=dict(fc="white", ec="none", alpha=0.8))
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, loc="lower right")
+    for q in (0, 1):
+        axes[-1, q].set_xlabel("frequency [Hz]")
+    fig.supylabel("z = residual of the run mean / predictive sd (clipped at ±50)", fontsize=9)
+    fig.suptitle(f"{doc['damper']}: where the model misses (orange: located bands; green: |z| < 3)", fontsize=10)
+    fig.tight_layout()
     return _save(fig, path)
 
 

@@ -160,13 +160,25 @@ def read_run(directory):
 
 
 def loo_pointwise(log_lik) -> np.ndarray:
-    """PSIS-LOO pointwise ELPD of a log-likelihood matrix ``(n_draws, n_points)``: shape (n_points,)."""
+    """PSIS-LOO pointwise ELPD of a log-likelihood matrix ``(n_draws, n_points)``: shape (n_points,).
+
+    Where the Pareto smoothing fails (a point whose log-likelihood spans thousands of nats over the
+    draws: the weights fall on one draw and the tail fit is undefined) the plain importance-sampling
+    estimate ``-log mean(exp(-log_lik))`` stands in; such points have Pareto k far above 0.7.
+    """
+    from scipy.special import logsumexp
+
     ll = np.asarray(log_lik, float)
     idata = az.from_dict(posterior={"_": np.zeros((1, ll.shape[0]))}, log_likelihood={"y": ll[None]})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # Pareto-k warnings are reported by the callers that care
-        res = az.loo(idata, pointwise=True)
-    return np.asarray(res.loo_i)
+        with np.errstate(all="ignore"):
+            res = az.loo(idata, pointwise=True)
+    out = np.asarray(res.loo_i, dtype=float)
+    bad = ~np.isfinite(out)
+    if bad.any():
+        out[bad] = -(logsumexp(-ll[:, bad], axis=0) - np.log(ll.shape[0]))
+    return out
 
 
 def posterior_draws(runs_dir, damper: str, paramset: str, parameters):
