@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .errors import InputError
 
-__all__ = ["atomic_path"]
+__all__ = ["atomic_path", "write_json"]
 
 
 @contextmanager
@@ -41,3 +41,11 @@ def atomic_path(path, suffix: str = ""):
         except FileNotFoundError:
             pass
         raise
+
+
+def write_json(path, doc, **dumps) -> None:
+    """Write ``doc`` as JSON (``json.dumps(doc, **dumps)`` and a newline) to ``path``, atomically."""
+    import json
+
+    with atomic_path(path, ".json") as tmp:
+        tmp.write_text(json.dumps(doc, **dumps) + "\n", encoding="utf-8")

@@ -4,7 +4,6 @@ sampler -> stored run. The CLI's ``sample`` and ``run`` commands are thin wrappe
 
 from __future__ import annotations
 
-import json
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
@@ -16,7 +15,7 @@ from .ga import fit_ga
 from .likelihood import TestLikelihood
 from .priors import load_prior
 from .runs import read_summary, run_dir, summarize, to_inference_data, versions, write_run
-from ._io import atomic_path
+from ._io import write_json
 from .sampler import SamplerConfig, sample
 
 __all__ = ["test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test", "is_up_to_date"]
@@ -91,8 +90,7 @@ def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed,
            "removed_runs": list(cleaned.removed_runs), "versions": versions(), **fit.as_dict()}
     path = run_dir(out, damper.name, test, paramset) / "ga.json"
-    with atomic_path(path, ".json") as tmp:
-        tmp.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    write_json(path, doc, indent=2, sort_keys=True)
     return doc
 
 

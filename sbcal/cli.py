@@ -183,17 +183,14 @@ def _fmt_cv(cv: dict, name: str) -> str:
 
 
 def _cmd_data(args) -> int:
-    import json
-
-    from ._io import atomic_path
+    from ._io import write_json
     from .bench import DEFAULT_Z_THRESHOLD, bench_summary
 
     z = DEFAULT_Z_THRESHOLD if args.z_threshold is None else args.z_threshold
     bench = _bench_for(args)
     summary = bench_summary(bench, z)
     if args.json:
-        with atomic_path(args.json, ".json") as tmp:
-            tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+        write_json(args.json, summary, indent=1)
     n_tests = sum(len(t) for t in summary.values())
     print(f"{bench.source}: {len(bench.frame)} rows; dampers: {len(summary)}, tests: {n_tests}; "
           f"outlier runs: score > {z:g}; CV: median % at f<=15/f>15 Hz, all runs -> kept runs")
@@ -234,9 +231,7 @@ def _add_map(sub):
 
 
 def _cmd_map(args) -> int:
-    import json
-
-    from ._io import atomic_path
+    from ._io import write_json
     from .amplitude import amplitude_map, map_dampers, points_from_table
     from .damper import resolve_damper
 
@@ -280,8 +275,7 @@ def _cmd_map(args) -> int:
 
         out = public(docs[key])
         out["others"] = {k: public(v) for k, v in docs.items() if k != key}
-        with atomic_path(args.json, ".json") as tmp:
-            tmp.write_text(json.dumps(out, indent=2) + "\n")
+        write_json(args.json, out, indent=2)
     if args.plot:
         from .amplitude import plot_map
 
@@ -330,6 +324,7 @@ def _cmd_run(args) -> int:
     import json
     from pathlib import Path
 
+    from ._io import write_json
     from .calibrate import calibrate_tests, is_up_to_date
     from .damper import bundled_dampers, resolve_damper
     from .diagnose import diagnose
@@ -356,7 +351,7 @@ def _cmd_run(args) -> int:
         else:
             result = diagnose(damper, bench, seed=args.seed)
             result["command"] = command
-            _write_json(result, stored)
+            write_json(stored, result, indent=1)
         print(f"{damper.name}: missing physics: {json.loads(stored.read_text())['verdict']}")
     index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed, command=command,
                          progress=lambda t: print(t, file=sys.stderr))
@@ -435,18 +430,10 @@ def _add_diagnose(sub):
     return p
 
 
-def _write_json(doc, path) -> None:
-    import json
-
-    from ._io import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(doc, indent=1) + "\n")
-
-
 def _cmd_diagnose(args) -> int:
     from pathlib import Path
 
+    from ._io import write_json
     from .damper import resolve_damper
     from .diagnose import diagnose
 
@@ -455,10 +442,9 @@ def _cmd_diagnose(args) -> int:
     result = diagnose(damper, bench, args.tests, seed=args.seed, progress=not args.quiet)
     result["command"] = args.command_line
     if args.json:
-        _write_json(result, args.json)
+        write_json(args.json, result, indent=1)
     stored = Path(args.runs) / damper.name / "diagnose.json"
-    stored.parent.mkdir(parents=True, exist_ok=True)
-    _write_json(result, stored)
+    write_json(stored, result, indent=1)
     print(f"{damper.name}: verdict {result['verdict']}")
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")

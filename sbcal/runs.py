@@ -23,7 +23,7 @@ with warnings.catch_warnings():
     warnings.simplefilter("ignore", FutureWarning)  # ArviZ 0.x announces its 1.x refactor on import
     import arviz as az
 
-from ._io import atomic_path
+from ._io import atomic_path, write_json
 from .errors import InputError
 
 __all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
@@ -133,8 +133,7 @@ def write_run(idata, summary: dict, directory) -> Path:
     d = Path(directory)
     with atomic_path(d / "posterior.nc", ".nc") as tmp:
         idata.to_netcdf(str(tmp))
-    with atomic_path(d / "summary.json", ".json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    write_json(d / "summary.json", summary, indent=2, sort_keys=True)
     return d
 
 
