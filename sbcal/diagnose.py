@@ -26,7 +26,7 @@ import os
 import re
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -220,8 +220,6 @@ def _run_jobs(jobs, config, show, what):
             show(f"{what}: {done}/{len(jobs)} fits done ({key[0]} {key[1]}, {max(w for _, _, w in got[key]):.1f} s)")
 
     if config.workers > 1 and len(parts) > 1:
-        from concurrent.futures import as_completed
-
         with ProcessPoolExecutor(max_workers=config.workers) as pool:
             for f in as_completed([pool.submit(_fit_job, p) for p in parts]):
                 collect(*f.result())
@@ -452,17 +450,22 @@ def _words(effect: str, v: dict) -> str:
     return ""
 
 
-def _summary(effect, fits, keys, tests, likes, base_i, config, bands) -> dict:
-    """Before/after numbers of one model: ELPD, misfit in the bands, coverage."""
+def _check_model(effect, fits, keys, tests, likes, n_runs, config):
+    """A fitted model's predictive check and PSIS-LOO: ``(z, thresholds, coverage, elpd_i)`` (see :func:`_check`)."""
     mu_mean, mu_var = {}, {}
+    joint = effect != "baseline" and EXTENSIONS[effect].joint
     for key in keys:
         fit = fits[key]
-        joint = effect != "baseline" and EXTENSIONS[effect].joint
         ts = [t for t in tests if _group(t) == key[1]] if joint else [key[1]]
         for t, m, v in zip(ts, fit["mu_mean"], fit["mu_var"]):
             mu_mean[t], mu_var[t] = m, v
     z, thr, coverage = _check(likes, [mu_mean[t] for t in tests], [mu_var[t] for t in tests], config.alpha)
-    elpd_i = _pointwise(fits, keys, tests, effect)
+    return z, thr, coverage, _pointwise(fits, keys, tests, joint, n_runs)
+
+
+def _summary(effect, fits, keys, check, base_i, bands, tests) -> dict:
+    """Before/after numbers of one model from its :func:`_check_model`: ELPD, misfit in the bands, coverage."""
+    z, thr, coverage, elpd_i = check
     out = {"effect": effect, "elpd": float(elpd_i.sum()),
            "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i, ddof=1))),
            "coverage_90": coverage,
@@ -472,21 +475,20 @@ def _summary(effect, fits, keys, tests, likes, base_i, config, bands) -> dict:
            "band_rms_z": _band_rms(bands, tests, z),
            "converged": all(fits[k]["converged"] for k in keys),
            "tau_max": max(fits[k]["tau"] for k in keys), "steps_max": max(fits[k]["steps"] for k in keys)}
-    if effect != "baseline":
+    if base_i is not None:
         d, se = _compare(base_i, elpd_i)
         out.update(delta_elpd=d, se=se)
-    return out, z, thr, elpd_i
+    return out
 
 
-def _pointwise(fits, keys, tests, effect) -> np.ndarray:
-    """PSIS-LOO pointwise ELPD of a model, runs of all tests in test order."""
+def _pointwise(fits, keys, tests, joint: bool, n_runs: dict) -> np.ndarray:
+    """PSIS-LOO pointwise ELPD of a model, runs of all tests in test order (``n_runs``: runs per test)."""
     parts = {}
     for key in keys:
         e = _elpd(fits[key])
-        if effect != "baseline" and EXTENSIONS[effect].joint:
+        if joint:
             ts = [t for t in tests if _group(t) == key[1]]
-            sizes = [fits[key]["_runs"][t] for t in ts]
-            for t, piece in zip(ts, np.split(e, np.cumsum(sizes)[:-1])):
+            for t, piece in zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])):
                 parts[t] = piece
         else:
             parts[key[1]] = e
@@ -580,19 +582,18 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     fits = _run_jobs(jobs, config, show, "baseline")
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]
-    z0_, thr0, _ = _check(likes, [base_fits[t]["mu_mean"][0] for t in tests],
-                          [base_fits[t]["mu_var"][0] for t in tests],
-                          config.alpha)
+    n_runs = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
+    base_check = _check_model("baseline", fits, base_keys, tests, likes, n_runs, config)
+    z0_, thr0, _, base_i = base_check
     bands = _bands(tests, likes, z0_, thr0)
     statistics = _statistics(damper, tests, likes, base_fits, z0_)
     screen = _screen(statistics, config)
-    base_i = _pointwise(fits, base_keys, tests, "baseline")
-    before, _, _, _ = _summary("baseline", fits, base_keys, tests, likes, base_i, config, bands)
+    before = _summary("baseline", fits, base_keys, base_check, None, bands, tests)
     show(f"located {len(bands)} band(s), {before['lines_off']} of {before['n_lines']} lines off")
 
     # 3. name: refit the screened candidates (all of them only if the baseline fails its check)
     candidates = [e for e in catalogue if screen[e]["kept"]] if bands else []
-    ranking, summaries, zs = [], {}, {}
+    ranking, summaries, checks = [], {}, {}
     all_jobs = []
     for e in candidates:
         jobs_e, _ = _jobs(e, damper, bench, tests, seqs[e], config)
@@ -600,14 +601,12 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     if all_jobs:
         show(f"refitting {len(candidates)} candidate(s): {', '.join(candidates)}")
         fits.update(_run_jobs(all_jobs, config, show, "candidates"))
-    runs_per_test = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
-    for key in fits:
-        fits[key]["_runs"] = runs_per_test
     keys_of = {e: [k for k in fits if k[0] == e] for e in candidates}
     for e in candidates:
-        s, z, thr, _ = _summary(e, fits, keys_of[e], tests, likes, base_i, config, bands)
-        s["explained"] = (1 - _band_sq(bands, tests, z) / _band_sq(bands, tests, z0_)) if bands else 0.0
-        summaries[e], zs[e] = s, z
+        checks[e] = _check_model(e, fits, keys_of[e], tests, likes, n_runs, config)
+        s = _summary(e, fits, keys_of[e], checks[e], base_i, bands, tests)
+        s["explained"] = (1 - _band_sq(bands, tests, checks[e][0]) / _band_sq(bands, tests, z0_)) if bands else 0.0
+        summaries[e] = s
         ranking.append({"effect": e, "delta_elpd": s["delta_elpd"], "se": s["se"], "explained": s["explained"]})
     ranking.sort(key=lambda r: -r["delta_elpd"])
 
@@ -623,10 +622,10 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     after = summaries[shown] if shown else before
     per_test = []
     if shown:
-        after_i = _pointwise(fits, keys_of[shown], tests, shown)
+        z_after, _, _, after_i = checks[shown]
         start = 0
-        for t, zb, za in zip(tests, z0_, zs[shown]):
-            n = runs_per_test[t]
+        for t, zb, za in zip(tests, z0_, z_after):
+            n = n_runs[t]
             d = after_i[start:start + n] - base_i[start:start + n]
             start += n
             per_test.append({"test": t, "delta_elpd": float(d.sum()),
@@ -646,7 +645,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         "after": after,
         "per_test": per_test,
         "residuals": {t: {"freq_hz": lk.freq_hz.tolist(), "z_before": zb.tolist(),
-                          "z_after": (zs[shown][i] if shown else zb).tolist()}
+                          "z_after": (checks[shown][0][i] if shown else zb).tolist()}
                       for i, (t, lk, zb) in enumerate(zip(tests, likes, z0_))},
         "statistics": statistics,
         "screen": screen,
