@@ -108,12 +108,10 @@ def _group(test: str) -> str:
     return (m.group(1) or "") if m else test
 
 
-def _residual_batch(like, x) -> np.ndarray:
+def _residual_batch(like: JointLikelihood, x) -> np.ndarray:
     """Standardised residuals of the run means, all tests, ``(n, n_values)``."""
-    likes = like.likes if isinstance(like, JointLikelihood) else [like]
-    mus = like.predict(x) if isinstance(like, JointLikelihood) else [like.predict(x)]
     out = []
-    for lk, mu in zip(likes, mus):
+    for lk, mu in zip(like.likes, like.predict(x)):
         r = lk._residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
         out.append(np.moveaxis(r, 1, 0).reshape(len(x), -1))
     r = np.concatenate(out, axis=1)
@@ -363,10 +361,6 @@ def _screen(stat: dict, config: DiagnoseConfig) -> dict:
 
 # --- name, model and show ----------------------------------------------------------------------
 
-def _elpd(fit) -> np.ndarray:
-    return loo_pointwise(fit["pointwise"])
-
-
 def _compare(base_i, ext_i) -> tuple[float, float]:
     d = ext_i - base_i
     return float(d.sum()), float(np.sqrt(d.size * np.var(d, ddof=1))) if d.size > 1 else 0.0
@@ -485,7 +479,7 @@ def _pointwise(fits, keys, tests, joint: bool, n_runs: dict) -> np.ndarray:
     """PSIS-LOO pointwise ELPD of a model, runs of all tests in test order (``n_runs``: runs per test)."""
     parts = {}
     for key in keys:
-        e = _elpd(fits[key])
+        e = loo_pointwise(fits[key]["pointwise"])
         if joint:
             ts = [t for t in tests if _group(t) == key[1]]
             for t, piece in zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])):
