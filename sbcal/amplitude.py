@@ -7,27 +7,32 @@ Two laws for the flexural rigidity, A the base amplitude [mm p-p]:
 
 Errors in variables: each test i enters through its posterior of ``log EJ``, summarised by its
 mean ``m_i`` and standard deviation ``s_i`` (the posterior is close to normal in log EJ, where its
-prior is flat), and the tests scatter around the law with a learned scale ``tau``::
+prior is flat), and the tests scatter around the law with a learned scale ``scatter``::
 
-    m_i ~ N(log EJ(A_i), s_i^2 + tau^2)
+    m_i ~ N(log EJ(A_i), s_i^2 + scatter^2)
 
 so a test known poorly counts less, and the law's intervals widen when the per-test posteriors
-widen. (k, n, tau), resp. (EJ_inf, c, n, tau), are sampled with emcee. The forms are compared by
-PSIS-LOO over tests; the saturating form is preferred only when its ELPD exceeds the power law's by
-more than the standard error of the difference (the simpler law wins ties). The loss factor's trend
-is fitted with the power law ``beta(A) = k A^(-n)`` (n may be negative: damping grows with A).
+widen. (k, n, scatter), resp. (EJ_inf, c, n, scatter), are sampled by the engine
+(:func:`sbcal.sampler.sample`). The forms are compared by PSIS-LOO over tests
+(:func:`sbcal.stats.elpd_difference`); the saturating form is preferred only when its ELPD exceeds the
+power law's by more than the standard error of the difference (the simpler law wins ties). The loss
+factor's trend is fitted with the power law ``beta(A) = k A^(-n)`` (n may be negative: damping grows
+with A). A per-test posterior that did not converge still enters, and the map says so
+(``inputs_not_converged``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import emcee
 import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .runs import loo_pointwise, posterior_draws
+from .priors import Prior
+from .runs import posterior_draws
+from .sampler import SamplerConfig, sample
+from .stats import elpd_difference, loo
 
 __all__ = ["TestPoint", "LawFit", "fit_law", "amplitude_map", "map_dampers", "plot_map", "points_from_table",
            "points_from_runs", "joint_powerlaw", "joint_from_runs"]
@@ -40,7 +45,8 @@ class TestPoint:
     """One test's posterior summary of a positive parameter in log space.
 
     Attributes: damper, test, amplitude (mm p-p), mean and sd of the log of the parameter,
-    the median and 90 % interval in natural units (for tables and plots).
+    the median and 90 % interval in natural units (for tables and plots), and whether the test's
+    posterior converged.
     """
 
     __test__ = False  # a bench test's point, not a pytest class
@@ -53,6 +59,7 @@ class TestPoint:
     median: float
     lo: float
     hi: float
+    converged: bool = True
 
 
 def _interval(v) -> list:
@@ -60,72 +67,72 @@ def _interval(v) -> list:
     return [float(q[0]), float(q[1]), float(q[2])]
 
 
-def _powerlaw(a, th):
-    # th: (n, 3) = log k, n, log tau
-    return th[:, :1] - th[:, 1:2] * np.log(a)
+_LAW_NAMES = {"powerlaw": ("k", "n", "scatter"), "saturating": ("EJ_inf", "c", "n", "scatter")}
 
 
-def _saturating(a, th):
-    # th: (n, 4) = log EJ_inf, log c, n, log tau
-    return np.log(np.exp(th[:, :1]) + np.exp(th[:, 1:2]) * a ** (-th[:, 2:3]))
+def _law_mean(law, a, p):
+    """log of the law at amplitudes ``a`` (1, n_tests) for parameter sets ``p`` (by name): (n, n_tests)."""
+    col = {k: np.asarray(v, float)[:, None] for k, v in p.items()}
+    if law == "powerlaw":
+        return np.log(col["k"]) - col["n"] * np.log(a)
+    return np.log(col["EJ_inf"] + col["c"] * a ** (-col["n"]))
 
 
-class _LawPosterior:
-    """log-posterior of a law's parameters given test points (picklable, vectorised)."""
+class _LawTarget:
+    """Log-posterior of a law's parameters given test points: the engine's target (picklable, vectorised)."""
 
-    def __init__(self, law, a, m, s, lower, upper):
-        self.law, self.a, self.m, self.s = law, a, m, s
-        self.lower, self.upper = lower, upper
+    def __init__(self, law, a, m, s, prior):
+        self.law, self.a, self.m, self.s, self.prior = law, a, m, s, prior
 
-    def pointwise(self, th):
-        mu = (_powerlaw if self.law == "powerlaw" else _saturating)(self.a, th)
-        var = self.s**2 + np.exp(th[:, -1:]) ** 2
+    def pointwise_log_likelihood(self, params):
+        mu = _law_mean(self.law, self.a, params)
+        var = self.s**2 + np.asarray(params["scatter"], float)[:, None] ** 2
         return -0.5 * ((self.m - mu) ** 2 / var + np.log(2 * np.pi * var))
 
-    def __call__(self, th):
-        th = np.atleast_2d(th)
-        out = np.full(len(th), -np.inf)
-        ok = np.all((th > self.lower) & (th < self.upper), axis=1)
+    def __call__(self, z):
+        z = np.atleast_2d(z)
+        out = self.prior.log_prob(z)
+        ok = np.isfinite(out)
         if ok.any():
-            out[ok] = self.pointwise(th[ok]).sum(axis=1)
+            with np.errstate(all="ignore"):
+                lp = self.pointwise_log_likelihood(self.prior.params(z[ok])).sum(axis=1)
+            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
         return out
 
 
 @dataclass(frozen=True)
 class LawFit:
-    """Posterior draws of one law.
+    """Posterior of one law.
 
     Attributes
     ----------
     law : str
         ``"powerlaw"`` or ``"saturating"``.
     draws : dict of str -> ndarray, shape (n_draws,)
-        Natural-unit draws: k, n, tau (power law) or EJ_inf, c, n, tau (saturating).
-    elpd_loo, elpd_se : float
+        Natural-unit draws: k, n, scatter (power law) or EJ_inf, c, n, scatter (saturating).
+    loo : sbcal.stats.Loo
         PSIS-LOO over tests.
-    pointwise : ndarray, shape (n_draws, n_tests)
+    result : sbcal.sampler.SampleResult
+        The engine's result (convergence, chains).
     """
 
     law: str
     draws: dict
-    elpd_loo: float
-    elpd_se: float
-    pointwise: np.ndarray
+    loo: object
+    result: object
 
     def curve(self, a) -> np.ndarray:
         """Draws of the law at amplitudes ``a``: shape (n_draws, len(a))."""
-        a = np.asarray(a, float)[None, :]
-        d = self.draws
-        if self.law == "powerlaw":
-            return d["k"][:, None] * a ** (-d["n"][:, None])
-        return d["EJ_inf"][:, None] + d["c"][:, None] * a ** (-d["n"][:, None])
+        return np.exp(_law_mean(self.law, np.asarray(a, float)[None, :], self.draws))
 
     def summary(self) -> dict:
-        return {name: _interval(v) for name, v in self.draws.items()}
+        out = {name: _interval(v) for name, v in self.draws.items()}
+        out.update(elpd_loo=self.loo.elpd, elpd_se=self.loo.se, convergence=self.result.convergence_dict())
+        return out
 
 
-def fit_law(points, law: str, *, seed: int, ceiling: float | None = None, nwalkers: int = 32,
-            steps: int = 3000) -> LawFit:
+def fit_law(points, law: str, *, seed: int, ceiling: float | None = None,
+            config: SamplerConfig = SamplerConfig()) -> LawFit:
     """Fit one law to test points by errors in variables (module docstring).
 
     Parameters
@@ -136,41 +143,26 @@ def fit_law(points, law: str, *, seed: int, ceiling: float | None = None, nwalke
     seed : int
     ceiling : float, optional
         Upper bound of EJ_inf (the damper's EJ_static); default 10x the largest median.
+    config : SamplerConfig
     """
+    if law not in _LAW_NAMES:
+        raise InputError(f"unknown law {law!r}")
     if len(points) < 3 or len({p.amplitude for p in points}) < 3:
         raise InputError(f"the {law} fit needs tests at 3 or more amplitudes, got {len(points)}")
     a = np.array([p.amplitude for p in points])[None, :]
     m = np.array([p.mean_log for p in points])[None, :]
     s = np.array([p.sd_log for p in points])[None, :]
-    top = np.log(ceiling if ceiling else 10 * np.exp(m.max()))
-    # flat priors on log k, n in [-3, 3], log tau in [log 1e-4, log 2]; EJ_inf below the ceiling
+    lo, hi = np.exp(m.min() - 10), np.exp(m.max() + 10)
+    top = ceiling if ceiling else 10 * np.exp(m.max())
+    # flat priors on log k (log EJ_inf, log c), on n, and on log scatter in [1e-4, 2]
+    boxes = {"n": (False, -3.0, 3.0), "scatter": (True, 1e-4, 2.0)}
     if law == "powerlaw":
-        lower = np.array([m.min() - 10, -3.0, np.log(1e-4)])
-        upper = np.array([m.max() + 10, 3.0, np.log(2.0)])
-        slope, icpt = np.polyfit(np.log(a[0]), m[0], 1)
-        start = np.array([icpt, -slope, np.log(max(np.std(m) * 0.1, 1e-3))])
-    elif law == "saturating":
-        lower = np.array([m.min() - 10, m.min() - 10, 0.0, np.log(1e-4)])
-        upper = np.array([top, m.max() + 10, 3.0, np.log(2.0)])
-        start = np.array([m.min() - 0.7, m.min() - 0.7, 0.7, np.log(max(np.std(m) * 0.1, 1e-3))])
+        boxes["k"] = (True, lo, hi)
     else:
-        raise InputError(f"unknown law {law!r}")
-    post = _LawPosterior(law, a, m, s, lower, upper)
-    rng = np.random.default_rng(seed)
-    start = np.clip(start, lower + 1e-3, upper - 1e-3)
-    p0 = start + 1e-3 * rng.standard_normal((nwalkers, len(start)))
-    sampler = emcee.EnsembleSampler(nwalkers, len(start), post, vectorize=True)
-    state = emcee.State(p0, random_state=np.random.RandomState(rng.integers(2**32)).get_state())
-    sampler.run_mcmc(state, steps, progress=False)
-    chain = sampler.get_chain(discard=steps // 3, thin=5, flat=True)
-    pw = post.pointwise(chain)
-    loo_i = loo_pointwise(pw)
-    elpd, se = float(loo_i.sum()), float(np.sqrt(len(loo_i) * np.var(loo_i)))
-    if law == "powerlaw":
-        draws = {"k": np.exp(chain[:, 0]), "n": chain[:, 1], "tau": np.exp(chain[:, 2])}
-    else:
-        draws = {"EJ_inf": np.exp(chain[:, 0]), "c": np.exp(chain[:, 1]), "n": chain[:, 2], "tau": np.exp(chain[:, 3])}
-    return LawFit(law=law, draws=draws, elpd_loo=elpd, elpd_se=se, pointwise=pw)
+        boxes.update(EJ_inf=(True, lo, top), c=(True, lo, hi), n=(False, 0.0, 3.0))
+    prior = Prior.from_boxes(law, boxes)
+    res = sample(_LawTarget(law, a, m, s, prior), seed=seed, config=config)
+    return LawFit(law=law, draws=res.flat(), loo=loo(res.log_likelihood), result=res)
 
 
 def points_from_table(path) -> list:
@@ -207,12 +199,13 @@ def points_from_table(path) -> list:
 def _points(records, damper: str, parameter: str, include=lambda test: True, mixed: bool = False) -> list:
     """Test points from ``posterior_draws`` records (see :func:`points_from_runs`)."""
     out = []
-    for test, amplitude, draws in records:
-        if parameter not in draws or (amplitude is None and not mixed) or not include(test):
+    for r in records:
+        if parameter not in r.draws or (r.amplitude is None and not mixed) or not include(r.test):
             continue
-        v = np.log(draws[parameter])
-        q = np.quantile(draws[parameter], [0.5, (1 - LEVEL) / 2, (1 + LEVEL) / 2])
-        out.append(TestPoint(damper, test, amplitude, float(v.mean()), float(v.std(ddof=1)), *map(float, q)))
+        v = np.log(r.draws[parameter])
+        q = np.quantile(r.draws[parameter], [0.5, (1 - LEVEL) / 2, (1 + LEVEL) / 2])
+        out.append(TestPoint(damper, r.test, r.amplitude, float(v.mean()), float(v.std(ddof=1)), *map(float, q),
+                             converged=bool(r.summary.get("converged", False))))
     return out
 
 
@@ -223,25 +216,26 @@ def points_from_runs(runs_dir, damper: str, parameter: str = "EJ", paramset: str
     return _points(posterior_draws(runs_dir, damper, paramset, (parameter,)), damper, parameter, include, mixed)
 
 
-def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float | None = None):
+def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float | None = None,
+                  config: SamplerConfig = SamplerConfig()):
     """Fit both laws to EJ and the power law to beta.
 
     Returns ``(doc, fits)``: ``doc`` is the ``sbcal map --json`` document, ``fits`` the two
     :class:`LawFit` of EJ (for plots).
 
-    Returns ``{"powerlaw": {"k": [median, lo, hi], "n": [...], "tau": [...], "elpd_loo", "elpd_se"},
-    "saturating": {"EJ_inf", "c", "n", "tau", "reduction_factor", "elpd_loo", "elpd_se"},
-    "preferred": "powerlaw|saturating", "criterion": str, "beta": {...}, "tests": [...]}`` with
-    every interval a 90 % one.
+    Returns ``{"powerlaw": {"k": [median, lo, hi], "n": [...], "scatter": [...], "elpd_loo", "elpd_se",
+    "convergence"}, "saturating": {"EJ_inf", "c", "n", "scatter", "reduction_factor", ...},
+    "preferred": "powerlaw|saturating", "criterion": str, "beta": {...}, "tests": [...], "converged"}``
+    with every interval a 90 % one; ``converged`` is false when any of the fits is not.
     """
-    pl = fit_law(ej_points, "powerlaw", seed=seed)
-    sat = fit_law(ej_points, "saturating", seed=seed + 1, ceiling=ej_static)
-    d_i = loo_pointwise(sat.pointwise) - loo_pointwise(pl.pointwise)
-    diff, se = float(d_i.sum()), float(np.sqrt(len(d_i) * np.var(d_i)))
+    pl = fit_law(ej_points, "powerlaw", seed=seed, config=config)
+    sat = fit_law(ej_points, "saturating", seed=seed + 1, ceiling=ej_static, config=config)
+    diff, se = elpd_difference(pl.loo, sat.loo)
     preferred = "saturating" if diff > se else "powerlaw"
     doc = {
-        "powerlaw": {**pl.summary(), "elpd_loo": pl.elpd_loo, "elpd_se": pl.elpd_se},
-        "saturating": {**sat.summary(), "elpd_loo": sat.elpd_loo, "elpd_se": sat.elpd_se},
+        "powerlaw": pl.summary(),
+        "saturating": sat.summary(),
+        "inputs_not_converged": [p.test for p in ej_points if not p.converged],
         "preferred": preferred,
         "criterion": (f"PSIS-LOO over tests: elpd(saturating) - elpd(powerlaw) = {diff:.2f} +- {se:.2f}; "
                       "the saturating law is preferred only when the difference exceeds its standard error"),
@@ -250,22 +244,25 @@ def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float 
     }
     if ej_static:
         doc["saturating"]["reduction_factor"] = _interval(ej_static / sat.draws["EJ_inf"])
+    fits = [pl, sat]
     if len(beta_points) >= 3:
-        bl = fit_law(beta_points, "powerlaw", seed=seed + 2)
-        doc["beta"] = {"powerlaw": {**bl.summary(), "elpd_loo": bl.elpd_loo, "elpd_se": bl.elpd_se},
+        bl = fit_law(beta_points, "powerlaw", seed=seed + 2, config=config)
+        fits.append(bl)
+        doc["beta"] = {"powerlaw": bl.summary(),
                        "tests": [{"damper": p.damper, "test": p.test, "amplitude_mm_pp": p.amplitude,
                                   "beta": [p.median, p.lo, p.hi]} for p in beta_points]}
     else:
         doc["beta"] = {}
+    doc["converged"] = all(f.result.converged for f in fits) and not doc["inputs_not_converged"]
     return doc, {"powerlaw": pl, "saturating": sat}
 
 
-def map_dampers(runs_dir, paramset: str = "theta1", *, seed: int = 0, include_oiled: bool = False,
-                ej_static=lambda name: None) -> dict:
+def map_dampers(runs_dir, paramset: str = "theta1", *, seed: int = 0, include_oiled: bool = False) -> dict:
     """:func:`amplitude_map` for every damper in a run store with tests at 3+ amplitudes.
 
     Mixed-amplitude tests (``2-1``) never enter the fit (they have no single amplitude); oiled
-    tests are kept out unless ``include_oiled``. Both are still listed under ``"excluded"``.
+    tests are kept out unless ``include_oiled``. Both are still listed under ``"excluded"``. The
+    saturating law's ceiling is the damper's ``ej_static`` as its stored runs describe it.
     """
     from pathlib import Path
 
@@ -278,7 +275,9 @@ def map_dampers(runs_dir, paramset: str = "theta1", *, seed: int = 0, include_oi
         if len({p.amplitude for p in ej}) < 3:
             continue
         beta = _points(records, d, "beta", keep)
-        doc, fits = amplitude_map(ej, beta, seed=seed, ej_static=ej_static(d))
+        statics = {r.summary.get("config", {}).get("damper_values", {}).get("ej_static") for r in records}
+        ceiling = statics.pop() if len(statics) == 1 else None  # runs of one damper description
+        doc, fits = amplitude_map(ej, beta, seed=seed, ej_static=ceiling)
         every = _points(records, d, "EJ", mixed=True)
         used = {p.test for p in ej}
         doc["excluded"] = [{"test": p.test, "amplitude_mm_pp": p.amplitude, "ej_nm2": [p.median, p.lo, p.hi]}
@@ -331,35 +330,49 @@ def plot_map(docs: dict, path) -> None:
     plt.close(fig)
 
 
-class _JointPosterior:
+def _per_test(name: str, test: str) -> str:
+    """The joint model's name of a per-test parameter, e.g. ``beta[0.5-0.5]``."""
+    return f"{name}[{test}]"
+
+
+_PER_TEST = ("beta", "sigma_mag", "sigma_phase")
+
+
+class _JointTarget:
     """All constant-amplitude tests of a damper at once: ``EJ_i = k A_i^-n``, shared a1, a2, and a
-    loss factor and model-error scales per test. Sampled coordinates: log k, n, a1, a2, then per
-    test beta, log sigma_mag, log sigma_phase. Picklable; ``__call__`` is emcee's vectorised log_prob."""
+    loss factor and model-error scales per test (``beta[<test>]`` ...): the engine's target. Each
+    test's likelihood gets its parameters by name."""
 
-    def __init__(self, likes, amplitudes, prior):
-        self.likes, self.amplitudes, self.prior = likes, np.asarray(amplitudes, float), prior
+    def __init__(self, likes, tests, amplitudes, prior):
+        self.likes, self.tests, self.amplitudes, self.prior = likes, list(tests), np.asarray(amplitudes, float), prior
 
-    def log_likelihood(self, th):
-        k, n, a1, a2 = np.exp(th[:, 0]), th[:, 1], th[:, 2], th[:, 3]
-        total = np.zeros(len(th))
-        for i, (like, amp) in enumerate(zip(self.likes, self.amplitudes)):
-            j = 4 + 3 * i
-            x = np.column_stack([th[:, j], a1, a2, k * amp ** (-n), np.exp(th[:, j + 1]), np.exp(th[:, j + 2])])
-            total += like.log_likelihood(x)
-        return total
+    def _test_params(self, p, i):
+        t = self.tests[i]
+        out = {"EJ": p["k"] * self.amplitudes[i] ** (-p["n"]), "a1": p["a1"], "a2": p["a2"]}
+        out.update({q: p[_per_test(q, t)] for q in _PER_TEST})
+        return out
 
-    def __call__(self, th):
-        th = np.atleast_2d(th)
-        out = self.prior.log_prob(th)
+    def log_likelihood(self, p):
+        return sum(like.log_likelihood(self._test_params(p, i)) for i, like in enumerate(self.likes))
+
+    def pointwise_log_likelihood(self, p):
+        return np.concatenate([like.pointwise_log_likelihood(self._test_params(p, i))
+                               for i, like in enumerate(self.likes)], axis=1)
+
+    def __call__(self, z):
+        z = np.atleast_2d(z)
+        out = self.prior.log_prob(z)
         ok = np.isfinite(out)
         if ok.any():
-            lp = self.log_likelihood(th[ok])
+            with np.errstate(all="ignore"):
+                lp = self.log_likelihood(self.prior.params(z[ok]))
             out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
         return out
 
 
-def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config=None, progress=None) -> dict:
-    """One emcee run over all given tests of a damper with EJ on the power law (k, n sampled).
+def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config: SamplerConfig | None = None,
+                   progress=None) -> dict:
+    """One posterior over all given tests of a damper with EJ on the power law (k, n sampled).
 
     Parameters
     ----------
@@ -369,29 +382,20 @@ def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config=None, 
         Constant-amplitude tests (3 or more amplitudes).
     seed : int
     start : dict, optional
-        Starting values: ``k``, ``n`` and per test ``beta``, ``sigma_mag``, ``sigma_phase``
-        (e.g. from the two-stage fit); default a least-squares start.
+        Starting values by name: ``k``, ``n`` and per test ``beta``, ``sigma_mag``, ``sigma_phase``
+        (``{"beta": {test: value}}``, e.g. from the two-stage fit); default: the prior's mid-box.
     config : SamplerConfig, optional
-        Default: 2 ensembles of 64 walkers, 50 autocorrelation times, at most 20000 steps.
+        Default: 32 walkers per ensemble (the model has 4 + 3 per test parameters).
+    progress : str, optional
 
     Returns
     -------
     dict with ``k``, ``n`` ([median, lo, hi], 90 %), ``beta`` per test, ``a1``, ``a2``, ``r_hat``
-    (max over parameters), ``converged``, ``n_steps``, ``wall_s``.
+    (max over parameters), ``convergence``, ``converged``, ``n_steps``, ``wall_s``.
     """
-    import time
-    from concurrent.futures import ProcessPoolExecutor
-    from dataclasses import replace
-
-    from scipy.optimize import minimize
-
     from .calibrate import test_likelihood
-    from .priors import Prior
-    from .runs import rhat_ess
-    from .sampler import SamplerConfig, _run_ensemble
 
-    t0 = time.perf_counter()
-    config = config or SamplerConfig(nwalkers=64, n_ensembles=2, max_steps=20000, max_draws=2000)
+    config = config or SamplerConfig(nwalkers=32)
     likes, amps = [], []
     for t in tests:
         like, cleaned = test_likelihood(damper, bench, t)
@@ -403,47 +407,28 @@ def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config=None, 
     if len(set(amps)) < 3:
         raise InputError(f"the joint fit needs tests at 3 or more amplitudes, got {sorted(set(amps))}")
     p1 = likes[0].prior
-    ia1, ia2, ib = (p1.names.index(n) for n in ("a1", "a2", "beta"))
-    ej_lo, ej_hi = p1.lower[p1.names.index("EJ")], p1.upper[p1.names.index("EJ")]
-    names = ["log_k", "n", "a1", "a2"] + [f"{v}_{t}" for t in tests for v in ("beta", "log_sigma_mag", "log_sigma_phase")]
-    lower = [np.log(ej_lo), -1.0, p1.lower[ia1], p1.lower[ia2]] + [p1.lower[ib], np.log(1e-4), np.log(1e-4)] * len(tests)
-    upper = [np.log(ej_hi), 3.0, p1.upper[ia1], p1.upper[ia2]] + [p1.upper[ib], 0.0, 0.0] * len(tests)
-    prior = Prior(paramset="joint_powerlaw", names=tuple(names), log_scale=np.zeros(len(names), bool),
-                  lower=np.array(lower), upper=np.array(upper))
-    post = _JointPosterior(likes, amps, prior)
+    boxes = {"k": p1.box("EJ"), "n": (False, -1.0, 3.0), "a1": p1.box("a1"), "a2": p1.box("a2")}
+    for t in tests:
+        for q in _PER_TEST:
+            boxes[_per_test(q, t)] = p1.box(q)
+    prior = Prior.from_boxes("joint_powerlaw", boxes)
+    target = _JointTarget(likes, tests, amps, prior)
     s = start or {}
-    z0 = np.array([np.log(s.get("k", 10.0)), s.get("n", 0.4), damper.a1, damper.a2]
-                  + [v for t in tests for v in (s.get("beta", {}).get(t, 0.3), np.log(s.get("sigma_mag", {}).get(t, 0.1)),
-                                                 np.log(s.get("sigma_phase", {}).get(t, 0.1)))])
-    width = prior.z_upper - prior.z_lower
-    z0 = np.clip(z0, prior.z_lower + 1e-6 * width, prior.z_upper - 1e-6 * width)
-    res = minimize(lambda z: -post(z)[0], z0, method="L-BFGS-B", bounds=list(zip(prior.z_lower, prior.z_upper)),
-                   options={"maxiter": 2000})
-    if np.isfinite(res.fun):
-        z0 = res.x
-    nwalkers = max(config.nwalkers, 2 * prior.ndim + 2)
-    seqs = np.random.SeedSequence(seed).spawn(config.n_ensembles)
-    jobs = [(post, z0, ss, nwalkers + nwalkers % 2, replace(config, workers=1), progress, e) for e, ss in enumerate(seqs)]
-    if config.workers > 1:
-        with ProcessPoolExecutor(max_workers=min(config.workers, len(jobs))) as pool:
-            runs = list(pool.map(_run_ensemble, jobs))
-    else:
-        runs = [_run_ensemble(j) for j in jobs]
-    n_draws = min(len(r[0]) for r in runs)
-    x = np.stack([r[0][:n_draws] for r in runs])  # (chains, draws, ndim)
-    diag = rhat_ess(x, names)
-    flat = x.reshape(-1, x.shape[-1])
-    out = {
-        "k": _interval(np.exp(flat[:, 0])), "n": _interval(flat[:, 1]),
-        "a1": _interval(flat[:, 2]), "a2": _interval(flat[:, 3]),
-        "beta": {t: _interval(flat[:, 4 + 3 * i]) for i, t in enumerate(tests)},
+    guess = {"k": s.get("k", 10.0), "n": s.get("n", 0.4), "a1": damper.a1, "a2": damper.a2}
+    for t in tests:
+        for q, default in zip(_PER_TEST, (0.3, 0.1, 0.1)):
+            guess[_per_test(q, t)] = s.get(q, {}).get(t, default)
+    res = sample(target, seed=seed, config=config, start=guess, progress=progress)
+    draws = res.flat()
+    return {
+        "k": _interval(draws["k"]), "n": _interval(draws["n"]),
+        "a1": _interval(draws["a1"]), "a2": _interval(draws["a2"]),
+        "beta": {t: _interval(draws[_per_test("beta", t)]) for t in tests},
         "tests": list(tests), "amplitudes_mm_pp": amps,
-        "r_hat": max(d["r_hat"] for d in diag.values()),
-        "ess_bulk_k_n": min(diag["log_k"]["ess_bulk"], diag["n"]["ess_bulk"]),
-        "converged": all(r[7] for r in runs) and max(d["r_hat"] for d in diag.values()) <= 1.01,
-        "n_steps": [int(r[4]) for r in runs], "wall_s": time.perf_counter() - t0, "seed": seed,
+        "r_hat": res.r_hat_max, "ess_bulk_k_n": min(res.ess_bulk["k"], res.ess_bulk["n"]),
+        "convergence": res.convergence_dict(), "converged": res.converged,
+        "n_steps": res.n_steps, "wall_s": res.wall_s, "seed": seed,
     }
-    return out
 
 
 def joint_from_runs(damper, bench, runs_dir, two_stage: dict, paramset: str = "theta1", *, seed: int = 0,

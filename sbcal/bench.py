@@ -756,6 +756,9 @@ class NoiseModel:
         Standard deviation of the phase of one run [rad].
     n_runs : ndarray of int, shape (n_freq,)
         Runs of the input test present at each line.
+    dof_logmag, dof_phase : ndarray, shape (n_freq,)
+        Degrees of freedom behind each sigma: ``sum (n_k - 1)`` over the pooled lines (0 where the
+        single-run default stands in). The likelihood's Student-t takes them.
 
     Sigmas are finite and >= :data:`NOISE_FLOOR`.
     """
@@ -764,10 +767,13 @@ class NoiseModel:
     sigma_logmag: np.ndarray
     sigma_phase: np.ndarray
     n_runs: np.ndarray
+    dof_logmag: np.ndarray
+    dof_phase: np.ndarray
 
 
-def _pooled_sigma(x: np.ndarray, floor: float, single_run_sigma: float) -> np.ndarray:
-    """Per-line sigma of x (n_runs, n_freq): classical pooled variance after a robust value screen."""
+def _pooled_sigma(x: np.ndarray, floor: float, single_run_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-line sigma of x (n_runs, n_freq) and its degrees of freedom: classical pooled variance
+    after a robust value screen."""
     z = _robust_z(x, floor)
     glitch = (np.abs(z) > _VALUE_Z) & (np.sum(~np.isnan(x), axis=0) >= _VALUE_MIN_RUNS)  # NaN z: False
     x = np.where(glitch, np.nan, x)
@@ -784,7 +790,7 @@ def _pooled_sigma(x: np.ndarray, floor: float, single_run_sigma: float) -> np.nd
         done |= take
     with np.errstate(invalid="ignore", divide="ignore"):
         sigma = np.where(dof_w > 0, np.sqrt(ss_w / dof_w), single_run_sigma)
-    return np.maximum(sigma, floor)
+    return np.maximum(sigma, floor), dof_w
 
 
 def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, floor: float = NOISE_FLOOR,
@@ -824,11 +830,14 @@ def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, flo
     keep = np.ones(test.runs.size, bool)
     keep[_outliers(run_scores(test, floor=floor), z)] = False
     logmag, phase = (c[keep] for c in _components(test))
+    (s_mag, d_mag), (s_ph, d_ph) = (_pooled_sigma(c, floor, single_run_sigma) for c in (logmag, phase))
     return NoiseModel(
         freq_hz=_readonly(test.freq_hz, float),
-        sigma_logmag=_readonly(_pooled_sigma(logmag, floor, single_run_sigma), float),
-        sigma_phase=_readonly(_pooled_sigma(phase, floor, single_run_sigma), float),
+        sigma_logmag=_readonly(s_mag, float),
+        sigma_phase=_readonly(s_ph, float),
         n_runs=_readonly(test.present.sum(axis=0), np.int64),
+        dof_logmag=_readonly(d_mag, float),
+        dof_phase=_readonly(d_ph, float),
     )
 
 

@@ -9,6 +9,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 
+import numpy as np
+
 from .bench import DEFAULT_Z_THRESHOLD, load_bench, noise_model, remove_outlier_runs
 from .damper import Damper
 from .ga import fit_ga
@@ -18,7 +20,10 @@ from .runs import read_summary, run_dir, summarize, to_inference_data, versions,
 from ._io import write_json
 from .sampler import SamplerConfig, sample
 
-__all__ = ["test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test", "is_up_to_date"]
+__all__ = ["likelihood_for", "test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test", "is_up_to_date"]
+
+POINT_FIT_POPULATION, POINT_FIT_GENERATIONS = 60, 200
+"""The thesis-cost point fit stored beside every posterior as its baseline (``ga`` in summary.json)."""
 
 
 def _fingerprint(bench) -> str:
@@ -26,6 +31,24 @@ def _fingerprint(bench) -> str:
     import hashlib
 
     return hashlib.sha256(Path(bench.source).read_bytes()).hexdigest()
+
+
+def likelihood_for(damper: Damper, data, prior, *, model=None, fixed=None) -> TestLikelihood:
+    """The likelihood of a test's (cleaned) runs with the pipeline's noise model.
+
+    Parameters
+    ----------
+    damper : Damper
+    data : TestData
+        The runs (:class:`sbcal.bench.TestData`).
+    prior : Prior
+    model, fixed
+        As :class:`sbcal.likelihood.TestLikelihood`.
+    """
+    noise = noise_model(data)
+    return TestLikelihood(damper, prior, data.freq_hz, data.magnitude, data.phase_deg, noise.sigma_logmag,
+                          noise.sigma_phase, noise_dof=np.stack([noise.dof_logmag, noise.dof_phase]), fixed=fixed,
+                          model=model, amplitude_mm_pp=data.amplitude_mm_pp)
 
 
 def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", prior_path=None,
@@ -36,11 +59,7 @@ def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", 
     """
     td = bench.test(damper.name, test)
     cleaned = remove_outlier_runs(td, DEFAULT_Z_THRESHOLD if z_threshold is None else z_threshold)
-    data = cleaned.data
-    noise = noise_model(data)
-    prior = load_prior(paramset, damper, prior_path)
-    like = TestLikelihood(damper, prior, data.freq_hz, data.magnitude, data.phase_deg, noise.sigma_logmag,
-                          noise.sigma_phase, fixed=fixed, model=model, amplitude_mm_pp=data.amplitude_mm_pp)
+    like = likelihood_for(damper, cleaned.data, load_prior(paramset, damper, prior_path), model=model, fixed=fixed)
     return like, cleaned
 
 
@@ -71,13 +90,16 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     """
     like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path, z_threshold)
     label = f"{damper.name}/{test}/{paramset}"
-    result = sample(like, seed=seed, config=config, progress=label if progress else None)
+    seqs = np.random.SeedSequence(seed).spawn(2)  # the thesis's point fit and the posterior
+    point = fit_ga(like, seed=np.random.default_rng(seqs[0]), population=POINT_FIT_POPULATION,
+                   generations=POINT_FIT_GENERATIONS)
+    result = sample(like, seed=seqs[1], config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
             "bench": bench.source, "bench_sha256": _fingerprint(bench), "prior": like.prior.as_dict(), "sampler": asdict(config),
             "command": command, "damper_values": asdict(damper)}
     idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
                               seed=seed, meta=meta)
-    summary = summarize(idata, result)
+    summary = summarize(idata, result, point_fit=point.as_dict())
     write_run(idata, summary, run_dir(out, damper.name, test, paramset))
     return summary
 

@@ -152,12 +152,12 @@ def _cmd_sample(args) -> int:
                                 command=args.command_line)
     for t, s in summaries.items():
         p = s["parameters"]
-        flag = "" if s["converged"] else "  NOT CONVERGED"
+        flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
         print(f"{damper.name} {t} {args.params}: EJ {p['EJ']['median']:.3g} [{p['EJ']['q05']:.3g}, "
               f"{p['EJ']['q95']:.3g}] N m^2, " + ", ".join(
                   f"{n} {p[n]['median']:.3g} [{p[n]['q05']:.3g}, {p[n]['q95']:.3g}]"
-                  for n in p if n.startswith("beta")) + f", R-hat max {max(v['r_hat'] for v in p.values()):.3f}"
-              f", {s['wall_s']:.1f} s{flag}")
+                  for n in p if n.startswith("beta")) + f", R-hat max {s['r_hat_max']:.3f}, "
+              f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.1f} s{flag}")
     print(f"stored in {args.out}/{damper.name}/<test>/{args.params}/")
     return 0
 
@@ -240,8 +240,7 @@ def _cmd_map(args) -> int:
         docs = {"table": doc}
         key = "table"
     else:
-        docs = map_dampers(args.runs, args.params, seed=args.seed, include_oiled=args.include_oiled,
-                           ej_static=lambda name: resolve_damper(name).ej_static if name.startswith("damper") else None)
+        docs = map_dampers(args.runs, args.params, seed=args.seed, include_oiled=args.include_oiled)
         if args.damper not in docs:
             have = ", ".join(docs) or "none"
             raise InputError(f"{args.runs}: no finished {args.params} runs of {args.damper!r} at 3+ amplitudes "
@@ -254,17 +253,19 @@ def _cmd_map(args) -> int:
             joint = joint_from_runs(resolve_damper(args.damper), _bench_for(args), args.runs, doc, args.params,
                                     seed=args.seed, progress=f"{args.damper} joint")
             doc["joint"] = joint
+            flag = "" if joint["converged"] else f" NOT CONVERGED ({joint['convergence']['reason']})"
             print(f"{key}: joint model k {joint['k'][0]:.3g} [{joint['k'][1]:.3g}, {joint['k'][2]:.3g}] N m^2, "
                   f"n {joint['n'][0]:.3f} [{joint['n'][1]:.3f}, {joint['n'][2]:.3f}], R-hat {joint['r_hat']:.3f}, "
-                  f"{joint['wall_s']:.0f} s; {joint['comparison']}")
+                  f"{joint['wall_s']:.0f} s{flag}; {joint['comparison']}")
     for name, doc in docs.items():
         pl, sat = doc["powerlaw"], doc["saturating"]
         print(f"{name}: EJ = k (A/1mm)^-n with k {pl['k'][0]:.3g} [{pl['k'][1]:.3g}, {pl['k'][2]:.3g}] N m^2, "
               f"n {pl['n'][0]:.3f} [{pl['n'][1]:.3f}, {pl['n'][2]:.3f}]; saturating EJ_inf "
               f"{sat['EJ_inf'][0]:.3g} [{sat['EJ_inf'][1]:.3g}, {sat['EJ_inf'][2]:.3g}]"
-              + (f", tau = EJ_static/EJ_inf {sat['reduction_factor'][0]:.3g} "
+              + (f", EJ_static/EJ_inf {sat['reduction_factor'][0]:.3g} "
                  f"[{sat['reduction_factor'][1]:.3g}, {sat['reduction_factor'][2]:.3g}]" if "reduction_factor" in sat else "")
-              + f"; preferred: {doc['preferred']}")
+              + f"; preferred: {doc['preferred']}"
+              + ("" if doc["converged"] else "  NOT CONVERGED: " + _map_problems(doc)))
         if doc.get("beta"):
             b = doc["beta"]["powerlaw"]
             print(f"{name}: beta = k (A/1mm)^-n with k {b['k'][0]:.3g} [{b['k'][1]:.3g}, {b['k'][2]:.3g}], "
@@ -281,6 +282,15 @@ def _cmd_map(args) -> int:
 
         plot_map(docs, args.plot)
     return 0
+
+
+def _map_problems(doc) -> str:
+    """Why a map is flagged: its own fits or the per-test posteriors it rests on."""
+    parts = [f"{law} fit: {doc[law]['convergence']['reason']}" for law in ("powerlaw", "saturating")
+             if not doc[law]["convergence"]["converged"]]
+    if doc.get("inputs_not_converged"):
+        parts.append("per-test posteriors not converged: " + ", ".join(doc["inputs_not_converged"]))
+    return "; ".join(parts)
 
 
 # --- report and run ----------------------------------------------------------------------------

@@ -24,9 +24,8 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -34,17 +33,18 @@ from scipy import stats
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
-from .bench import noise_model, remove_outlier_runs
-from .calibrate import _fingerprint
+from .bench import remove_outlier_runs
+from .calibrate import _fingerprint, likelihood_for
 from .damper import Damper
 from .errors import InputError
 from .extensions import EXTENSIONS, model_for
 from .fem import arm_curvatures
-from .ga import fit_ga
-from .likelihood import JointLikelihood, TestLikelihood
+from .likelihood import JointLikelihood
 from .priors import extension_prior
-from .runs import loo_pointwise, versions
-from .sampler import SamplerConfig, _run_ensemble
+from .progress import progress_bar
+from .runs import versions
+from .sampler import SamplerConfig, sample
+from .stats import elpd_difference, loo
 
 __all__ = ["DiagnoseConfig", "diagnose", "is_up_to_date"]
 
@@ -73,12 +73,12 @@ class DiagnoseConfig:
         Screening: lag-1 correlation of the residuals over frequency (structured misfit) that
         admits the extensions without a specific signature, or curvature correlation for strand slip.
     draws : int
-        Posterior draws kept per fit (over all ensembles).
-    n_ensembles, tau_factor, max_steps, joint_max_steps : int, float, int, int
-        emcee: independent ensembles per fit, run length in autocorrelation times, step cap of a
-        per-test fit and of a joint one (the slip law's parameters are correlated: tau ~ 170 steps).
+        Posterior draws kept per ensemble.
+    max_steps, joint_max_steps : int
+        Step caps of the engine for a per-test fit and for a joint one (the policy and everything
+        else are the engine's: :data:`sbcal.sampler.POLICY`).
     workers : int
-        Processes (fits run in parallel).
+        Processes (per-test fits run in parallel; a joint fit runs its ensembles in parallel).
     """
 
     alpha: float = 0.05
@@ -87,17 +87,15 @@ class DiagnoseConfig:
     screen_t: float = 3.0
     screen_share: float = 0.05
     screen_corr: float = 0.3
-    draws: int = 400
-    n_ensembles: int = 2
-    tau_factor: float = 20.0
-    max_steps: int = 3000
+    draws: int = 250
+    max_steps: int = 20000
     joint_max_steps: int = 6000
     workers: int = field(default_factory=lambda: min(2, os.cpu_count() or 1))
 
     def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
-        return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), n_ensembles=self.n_ensembles,
-                             tau_factor=self.tau_factor, burn_fraction=0.3, check_every=100,
-                             max_steps=self.joint_max_steps if joint else self.max_steps, max_draws=max(1, self.draws // self.n_ensembles), workers=1)
+        return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), max_draws=self.draws,
+                             max_steps=self.joint_max_steps if joint else self.max_steps,
+                             workers=self.workers if joint else 1)
 
 
 # --- fits --------------------------------------------------------------------------------------
@@ -108,12 +106,12 @@ def _group(test: str) -> str:
     return (m.group(1) or "") if m else test
 
 
-def _residual_batch(like: JointLikelihood, x) -> np.ndarray:
+def _residual_batch(like: JointLikelihood, params: dict) -> np.ndarray:
     """Standardised residuals of the run means, all tests, ``(n, n_values)``."""
     out = []
-    for lk, mu in zip(like.likes, like.predict(x)):
-        r = lk._residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
-        out.append(np.moveaxis(r, 1, 0).reshape(len(x), -1))
+    for lk, mu in zip(like.likes, like.predict(params)):
+        r = lk.residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
+        out.append(np.moveaxis(r, 1, 0).reshape(mu.shape[1], -1))
     r = np.concatenate(out, axis=1)
     return np.where(np.isfinite(r), r, 1e3)
 
@@ -129,11 +127,11 @@ def _start_joint(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
     step = 1e-6 * (hi - lo)
 
     def fun(zz):
-        return _residual_batch(like, prior.to_natural(zz))[0]
+        return _residual_batch(like, prior.params(zz))[0]
 
     def jac(zz):
         h = np.where(zz + step <= hi, step, -step)
-        r = _residual_batch(like, prior.to_natural(np.vstack([zz, zz + np.diag(h)])))
+        r = _residual_batch(like, prior.params(np.vstack([zz, zz + np.diag(h)])))
         return ((r[1:] - r[0]) / h[:, None]).T
 
     best, best_lp = starts[0], -np.inf
@@ -146,33 +144,23 @@ def _start_joint(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
     return best
 
 
-def _fit_job(job):
-    """Some emcee ensembles of one posterior (a test's, or a joint one). Module-level: picklable.
-
-    Every part of a fit computes the same start from the same seed, so a joint fit can run its
-    ensembles in parallel processes and the draws do not depend on the number of workers.
-    """
-    key, like, ss, config, ensembles = job
-    t0 = time.perf_counter()
-    prior = like.prior
-    seqs = ss.spawn(config.n_ensembles + 1)
-    rng = np.random.default_rng(seqs[0])
-    if isinstance(like, JointLikelihood):
-        z0 = _start_joint(like, rng)
-    else:
-        fit = fit_ga(like, seed=rng, population=40, generations=200, cost="likelihood")
-        z0 = prior.to_z(fit.x[None])[0]
-    sc = config.sampler(prior.ndim, joint=isinstance(like, JointLikelihood))
-    runs = [_run_ensemble((like, z0, seqs[1 + e], sc.nwalkers + sc.nwalkers % 2, sc, None, e)) for e in ensembles]
-    return key, ensembles, runs, time.perf_counter() - t0
+def _fit(job):
+    """One posterior through the engine (a test's, or a joint one). Module-level: picklable."""
+    key, like, ss, config = job
+    joint = isinstance(like, JointLikelihood)
+    start = None
+    if joint:  # a joint fit's box is wide and its mode narrow: a global least-squares start
+        s0, s1 = ss.spawn(2)
+        start, ss = _start_joint(like, np.random.default_rng(s0)), s1
+    res = sample(like, seed=ss, config=config.sampler(like.prior.ndim, joint), start=start)
+    return key, _posterior(like, res)
 
 
-def _posterior(like, runs, wall_s) -> dict:
-    """Draws of a fit's ensembles -> what the diagnosis needs: model curves, pointwise log-likelihood."""
-    n = min(len(r[0]) for r in runs)
-    x = np.concatenate([r[0][:n] for r in runs])
+def _posterior(like, res) -> dict:
+    """An engine result -> what the diagnosis needs: model curves, pointwise log-likelihood, convergence."""
+    params = res.flat()
     likes = like.likes if isinstance(like, JointLikelihood) else [like]
-    mus = like.predict(x) if isinstance(like, JointLikelihood) else [like.predict(x)]
+    mus = like.predict(params) if isinstance(like, JointLikelihood) else [like.predict(params)]
     mu_mean, mu_var = [], []
     for mu in mus:
         # phase draws about the first draw, so a wrap cannot corrupt the mean
@@ -180,70 +168,54 @@ def _posterior(like, runs, wall_s) -> dict:
         d[1] = mu[1, :1] + np.remainder(mu[1] - mu[1, :1] + np.pi, 2 * np.pi) - np.pi
         mu_mean.append(d.mean(axis=1))
         mu_var.append(d.var(axis=1))
-    ll = np.concatenate([lk.pointwise_log_likelihood(x, mu) for lk, mu in zip(likes, mus)], axis=1)
-    return dict(x=x, names=like.prior.names, pointwise=ll, mu_mean=mu_mean, mu_var=mu_var,
-                converged=all(r[7] for r in runs), tau=float(max(np.max(r[3]) for r in runs)),
-                steps=int(max(r[4] for r in runs)), wall_s=wall_s)
+    return dict(params=params, names=like.prior.names, log_lik=res.log_likelihood, mu_mean=mu_mean, mu_var=mu_var,
+                convergence=res.convergence_dict(), converged=res.converged, wall_s=res.wall_s, likes=len(likes))
 
 
-class _Progress:
-    def __init__(self, label: str, enabled: bool):
-        self.label, self.enabled, self.t0 = label, enabled, time.perf_counter()
-
-    def __call__(self, text: str):
-        if self.enabled:
-            sys.stderr.write(f"{self.label} [{time.perf_counter() - self.t0:5.0f} s]: {text}\n")
-            sys.stderr.flush()
-
-
-def _run_jobs(jobs, config, show, what):
-    """Run fits (in processes when ``config.workers > 1``), reporting each as it finishes.
-
-    ``jobs``: ``(key, like, seed_sequence, config)``; a joint fit's ensembles run as separate parts.
-    """
-    parts = []
-    for key, like, ss, cfg in jobs:
-        if isinstance(like, JointLikelihood):
-            parts += [(key, like, ss, cfg, (e,)) for e in range(cfg.n_ensembles)]
-        else:
-            parts.append((key, like, ss, cfg, tuple(range(cfg.n_ensembles))))
-    likes = {key: like for key, like, _, _ in jobs}
-    got, done = {}, 0
-
-    def collect(key, ensembles, runs, wall):
-        nonlocal done
-        got.setdefault(key, []).append((ensembles, runs, wall))
-        if sum(len(e) for e, _, _ in got[key]) == config.n_ensembles:
-            done += 1
-            show(f"{what}: {done}/{len(jobs)} fits done ({key[0]} {key[1]}, {max(w for _, _, w in got[key]):.1f} s)")
-
-    if config.workers > 1 and len(parts) > 1:
-        with ProcessPoolExecutor(max_workers=config.workers) as pool:
-            for f in as_completed([pool.submit(_fit_job, p) for p in parts]):
-                collect(*f.result())
-    else:
-        for p in parts:
-            collect(*_fit_job(p))
+def _run_fits(jobs, config, label):
+    """Run fits: per-test ones in ``config.workers`` processes, joint ones one by one (each runs its
+    ensembles in parallel); a progress bar over the fits. Returns ``{key: fit}``."""
+    single = [j for j in jobs if not isinstance(j[1], JointLikelihood)]
+    joint = [j for j in jobs if isinstance(j[1], JointLikelihood)]
     out = {}
-    for key, pieces in got.items():
-        pieces.sort(key=lambda p: p[0])
-        runs = [r for _, rs, _ in pieces for r in rs]
-        out[key] = _posterior(likes[key], runs, max(w for _, _, w in pieces))
+    with progress_bar(label, total=len(jobs), unit="fit") as bar:
+        if config.workers > 1 and len(single) > 1:
+            with ProcessPoolExecutor(max_workers=config.workers) as pool:
+                for key, fit in pool.map(_fit, single):
+                    out[key] = fit
+                    bar.update(1)
+        else:
+            for job in single:
+                key, fit = _fit(job)
+                out[key] = fit
+                bar.update(1)
+        for job in joint:
+            key, fit = _fit(job)
+            out[key] = fit
+            bar.update(1)
     return out
 
 
 # --- locate ------------------------------------------------------------------------------------
 
 def _check(likes, mu_mean, mu_var, alpha: float):
-    """Standardised residuals per test ``(2, n_freq)``, the off-line threshold per test, and coverage."""
+    """Standardised residuals per test ``(2, n_freq)``, the off-line threshold per test, and coverage.
+
+    The run mean's residual is standardised by the noise-only likelihood's t of the run mean given the
+    runs' deviations (:meth:`TestLikelihood.mean_scale`) widened by the posterior spread of the model;
+    the band of a new run is the likelihood's new-run t (:meth:`TestLikelihood.new_run`), likewise widened.
+    """
     n_lines = sum(2 * lk.freq_hz.size for lk in likes)
     z, thr, inside, total = [], [], 0, 0
     for lk, m, v in zip(likes, mu_mean, mu_var):
-        r = lk._residual(m[:, None, :])[:, 0]
-        z.append(r / np.sqrt(lk.sigma ** 2 / lk.n + v))
-        thr.append(stats.t.ppf(1 - alpha / (2 * n_lines), lk.nu))  # (n_freq,)
+        mu = m[:, None, :]
+        r = lk.residual(mu)[:, 0]
+        scale, dof = (a[:, 0] for a in lk.mean_scale({}, mu))
+        z.append(r / np.sqrt(scale ** 2 + v))
+        thr.append(stats.t.ppf(1 - alpha / (2 * n_lines), dof))  # (2, n_freq)
         # 90 % predictive band of a new run against every recorded run
-        half = stats.t.ppf(0.95, lk.nu) * np.sqrt(lk.sigma ** 2 + v)
+        _, new_scale, new_dof = (a[:, 0] for a in lk.new_run({}, mu))
+        half = stats.t.ppf(0.95, new_dof) * np.sqrt(new_scale ** 2 + v)
         dev = lk.y - m[:, None, :]
         dev[1] = np.remainder(dev[1] + np.pi, 2 * np.pi) - np.pi
         ok = (np.abs(dev) <= half[:, None, :]) & lk.present[None]
@@ -256,8 +228,9 @@ def _bands(tests, likes, z, thr) -> list:
     """Neighbouring off lines (a gap of one line allowed) as bands, per test and quantity."""
     bands = []
     for t, lk, zt, th in zip(tests, likes, z, thr):
+        th = np.broadcast_to(th, zt.shape)
         for q, name in enumerate(_QUANTITIES):
-            off = np.flatnonzero(np.abs(zt[q]) > th)
+            off = np.flatnonzero(np.abs(zt[q]) > th[q])
             if off.size == 0:
                 continue
             groups = np.split(off, np.flatnonzero(np.diff(off) > 2) + 1)
@@ -299,7 +272,7 @@ def _statistics(damper, tests, likes, fits, z) -> dict:
     ph_r, ph_w, ph_x, c_r, c_w, c_x = [], [], [], [], [], []
     for lk, t in zip(likes, tests):
         m, v = fits[t]["mu_mean"][0], fits[t]["mu_var"][0]
-        r = lk._residual(m[:, None, :])[:, 0]
+        r = lk.residual(m[:, None, :])[:, 0]
         w = 1.0 / (lk.sigma ** 2 / lk.n + v)
         omega = 2 * np.pi * lk.freq_hz
         ph_r.append(r[1]), ph_w.append(w[1]), ph_x.append(-omega)
@@ -318,7 +291,7 @@ def _statistics(damper, tests, likes, fits, z) -> dict:
             a = lk.amplitude_mm_pp
             if _group(t) == g and np.all(np.isfinite(a)) and np.allclose(a, a[0]):
                 amp.append(a[0])
-                ej.append(np.median(fits[t]["x"][:, fits[t]["names"].index("EJ")]))
+                ej.append(np.median(fits[t]["params"]["EJ"]))
         if len(amp) >= 3 and np.ptp(np.log(amp)) > 0:
             res = stats.linregress(np.log(amp), np.log(ej))
             tval = res.slope / res.stderr if res.stderr > 0 else np.inf * np.sign(res.slope)
@@ -327,8 +300,7 @@ def _statistics(damper, tests, likes, fits, z) -> dict:
     # misfit versus the predicted cable curvature (rms over both arms' ends), Spearman per test
     rho = []
     for t, lk in zip(tests, likes):
-        x = fits[t]["x"]
-        p = dict(zip(fits[t]["names"], np.median(x, axis=0)))
+        p = {n: float(np.median(v)) for n, v in fits[t]["params"].items()}
         chi = arm_curvatures(damper, lk.freq_hz, ej1=p["EJ"], ej2=p["EJ"], beta1=p["beta"], beta2=p["beta"],
                              xc=(np.nan_to_num(lk.amplitude_mm_pp, nan=1.0) / 2e3)[None, :], a1=p["a1"], a2=p["a2"])
         curv = np.sqrt(np.mean(np.abs(chi[0]) ** 2, axis=(1, 2)))
@@ -361,11 +333,6 @@ def _screen(stat: dict, config: DiagnoseConfig) -> dict:
 
 # --- name, model and show ----------------------------------------------------------------------
 
-def _compare(base_i, ext_i) -> tuple[float, float]:
-    d = ext_i - base_i
-    return float(d.sum()), float(np.sqrt(d.size * np.var(d, ddof=1))) if d.size > 1 else 0.0
-
-
 def _quantiles(v) -> dict:
     q = np.quantile(v, [0.05, 0.5, 0.95])
     return {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
@@ -396,7 +363,7 @@ def _parameters(effect: str, fits: dict, keys, baseline_names) -> dict:
         for key in keys:
             fit = fits[key]
             out["per_group"][key[1] or "default"] = {
-                n: dict(_quantiles(fit["x"][:, fit["names"].index(n)]), unit=_UNITS.get(n, "")) for n in own}
+                n: dict(_quantiles(fit["params"][n]), unit=_UNITS.get(n, "")) for n in own}
         main = max(keys, key=lambda k: len(fits[k]["mu_mean"]))
         out["values"] = out["per_group"][main[1] or "default"]
         out["words"] = "; ".join((f"{g} cable: " if len(keys) > 1 else "") + _words(effect, v)
@@ -405,7 +372,7 @@ def _parameters(effect: str, fits: dict, keys, baseline_names) -> dict:
     for n in own:
         per = {}
         for key in keys:
-            v = fits[key]["x"][:, fits[key]["names"].index(n)]
+            v = fits[key]["params"][n]
             per[key[1]] = {"mean": float(v.mean()), "sd": float(v.std()), **_quantiles(v)}
         out["values"][n] = dict(_combined(per), unit=_UNITS.get(n, ""))
         for t, v in per.items():
@@ -461,16 +428,21 @@ def _summary(effect, fits, keys, check, base_i, bands, tests) -> dict:
     """Before/after numbers of one model from its :func:`_check_model`: ELPD, misfit in the bands, coverage."""
     z, thr, coverage, elpd_i = check
     out = {"effect": effect, "elpd": float(elpd_i.sum()),
-           "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i, ddof=1))),
+           "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
            "coverage_90": coverage,
            "lines_off": int(sum(np.sum(np.abs(zt) > th) for zt, th in zip(z, thr))),
            "n_lines": int(sum(zt.size for zt in z)),
            "rms_z": float(np.sqrt(np.mean(np.concatenate([zt.ravel() for zt in z]) ** 2))),
            "band_rms_z": _band_rms(bands, tests, z),
            "converged": all(fits[k]["converged"] for k in keys),
-           "tau_max": max(fits[k]["tau"] for k in keys), "steps_max": max(fits[k]["steps"] for k in keys)}
+           "r_hat_max": max(fits[k]["convergence"]["r_hat_max"] for k in keys),
+           "ess_bulk_min": min(fits[k]["convergence"]["ess_bulk_min"] for k in keys),
+           "tau_max": max(fits[k]["convergence"]["tau_max"] for k in keys),
+           "steps_max": max(fits[k]["convergence"]["n_steps"] for k in keys),
+           "not_converged": {f"{k[0]} {k[1]}".strip(): fits[k]["convergence"]["reason"] for k in keys
+                             if not fits[k]["converged"]}}
     if base_i is not None:
-        d, se = _compare(base_i, elpd_i)
+        d, se = elpd_difference(base_i, elpd_i)
         out.update(delta_elpd=d, se=se)
     return out
 
@@ -479,7 +451,7 @@ def _pointwise(fits, keys, tests, joint: bool, n_runs: dict) -> np.ndarray:
     """PSIS-LOO pointwise ELPD of a model, runs of all tests in test order (``n_runs``: runs per test)."""
     parts = {}
     for key in keys:
-        e = loo_pointwise(fits[key]["pointwise"])
+        e = loo(fits[key]["log_lik"]).pointwise
         if joint:
             ts = [t for t in tests if _group(t) == key[1]]
             for t, piece in zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])):
@@ -492,13 +464,9 @@ def _pointwise(fits, keys, tests, joint: bool, n_runs: dict) -> np.ndarray:
 def _likes(damper, bench, tests, effect):
     out = []
     for t in tests:
-        cleaned = remove_outlier_runs(bench.test(damper.name, t))
-        data = cleaned.data
-        noise = noise_model(data)
-        out.append(TestLikelihood(damper, extension_prior(effect, damper), data.freq_hz, data.magnitude,
-                                  data.phase_deg, noise.sigma_logmag, noise.sigma_phase,
-                                  model=model_for(effect, data.amplitude_mm_pp),
-                                  amplitude_mm_pp=data.amplitude_mm_pp))
+        data = remove_outlier_runs(bench.test(damper.name, t)).data
+        out.append(likelihood_for(damper, data, extension_prior(effect, damper),
+                                  model=model_for(effect, data.amplitude_mm_pp)))
     return out
 
 
@@ -544,7 +512,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         Seeds every fit (through ``numpy.random.SeedSequence``): the same seed, the same numbers.
     config : DiagnoseConfig
     progress : bool
-        Progress lines on stderr.
+        Progress bars on stderr (when it is a terminal).
     effects : sequence of str, optional
         Restrict the catalogue (default: all of :data:`sbcal.extensions.EXTENSIONS`).
 
@@ -566,14 +534,13 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     for e in catalogue:
         if e not in EXTENSIONS:
             raise InputError(f"unknown effect {e!r}; known: {', '.join(EXTENSIONS)}")
-    show = _Progress(f"diagnose {damper.name}", progress)
+    label = (lambda stage: f"diagnose {damper.name}: {stage}") if progress else (lambda stage: None)
     root = np.random.SeedSequence(seed)
     seqs = dict(zip(["baseline"] + list(EXTENSIONS), root.spawn(len(EXTENSIONS) + 1)))
 
     # 1-2. baseline and locate
-    show(f"baseline: {len(tests)} test(s), per-test fits")
     jobs, likes = _jobs("baseline", damper, bench, tests, seqs["baseline"], config)
-    fits = _run_jobs(jobs, config, show, "baseline")
+    fits = _run_fits(jobs, config, label("per-test fits"))
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]
     n_runs = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
@@ -583,7 +550,6 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     statistics = _statistics(damper, tests, likes, base_fits, z0_)
     screen = _screen(statistics, config)
     before = _summary("baseline", fits, base_keys, base_check, None, bands, tests)
-    show(f"located {len(bands)} band(s), {before['lines_off']} of {before['n_lines']} lines off")
 
     # 3. name: refit the screened candidates (all of them only if the baseline fails its check)
     candidates = [e for e in catalogue if screen[e]["kept"]] if bands else []
@@ -593,8 +559,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         jobs_e, _ = _jobs(e, damper, bench, tests, seqs[e], config)
         all_jobs += jobs_e
     if all_jobs:
-        show(f"refitting {len(candidates)} candidate(s): {', '.join(candidates)}")
-        fits.update(_run_jobs(all_jobs, config, show, "candidates"))
+        fits.update(_run_fits(all_jobs, config, label(f"{len(candidates)} candidate extension(s)")))
     keys_of = {e: [k for k in fits if k[0] == e] for e in candidates}
     for e in candidates:
         checks[e] = _check_model(e, fits, keys_of[e], tests, likes, n_runs, config)
@@ -620,10 +585,9 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         start = 0
         for t, zb, za in zip(tests, z0_, z_after):
             n = n_runs[t]
-            d = after_i[start:start + n] - base_i[start:start + n]
+            d, se = elpd_difference(base_i[start:start + n], after_i[start:start + n])
             start += n
-            per_test.append({"test": t, "delta_elpd": float(d.sum()),
-                             "se": float(np.sqrt(n * np.var(d, ddof=1))) if n > 1 else 0.0,
+            per_test.append({"test": t, "delta_elpd": d, "se": se,
                              "rms_z_before": float(np.sqrt(np.mean(zb ** 2))),
                              "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
     result = {
@@ -647,5 +611,4 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         "versions": versions(),
         "wall_s": time.perf_counter() - t0,
     }
-    show(f"verdict: {verdict} ({result['wall_s']:.0f} s)")
     return result

@@ -1,25 +1,36 @@
-"""The likelihood of one test's cleaned runs (``docs/likelihood.md``).
+"""The likelihood of one test's cleaned runs (``docs/calibration.md``).
 
-Observation model, per frequency line k, quantity q in {log-magnitude, phase}, run r::
+Observation model, per frequency line k and quantity q (natural-log magnitude, phase [rad]), run r::
 
-    y_rk = mu_k(theta) + delta_k + eps_rk,    eps_rk ~ N(0, sigma_k^2),    delta_k ~ N(0, s_q^2)
+    y_rk = mu_k(theta) + delta_k + eps_rk,   eps_rk ~ N(0, sigma_k^2 / lambda_k),   delta_k ~ N(0, s_q^2 / lambda_k)
 
-``mu`` is the forward model (natural log of |f_uu|, and arg f_uu in rad), ``sigma_k`` the run-to-run
-scatter estimated from the repeats (the noise model), and ``delta_k`` a model discrepancy shared by
-all runs of the test, with a learned scale ``s_q`` (``sigma_mag``, ``sigma_phase``). Integrating
-``delta`` out, the run mean is sufficient: ``ybar_k ~ N(mu_k, sigma_k^2 / n_k + s_q^2)``. Because the
-discrepancy does not average away over runs, the credible bands stay as wide as the misfit when the
-model is wrong, instead of shrinking as 1/sqrt(n_runs).
+``mu`` is the forward model, ``sigma_k`` the run-to-run scatter of the noise model
+(:func:`sbcal.bench.noise_model`), ``delta_k`` a model discrepancy shared by all runs of the test with a
+learned scale ``s_q`` (``sigma_mag``, ``sigma_phase``; absent in the noise-only likelihood of
+``sbcal diagnose``), and ``lambda_k ~ Gamma(nu_k / 2, nu_k / 2)`` says that the line's noise level is
+known only as well as the repeats tell: ``nu_k`` is the noise estimate's degrees of freedom from the
+neighbouring lines it was pooled with (at least :data:`NU_MIN`), and the line's own runs update it.
+The runs of one line are then jointly **multivariate Student-t**::
 
-``sigma_k`` is itself estimated from the same n_k runs, so the run mean is taken Student-t with
-``nu_k = n_k - 1`` degrees of freedom and scale ``sqrt(sigma_k^2 / n_k + s_q^2)`` (exact when s_q = 0:
-``(ybar - mu) / (sigma_hat / sqrt(n))`` is t-distributed); the new-run predictive likewise. With
-10 runs a normal band would under-cover held-out runs by about 4 points at 90 %.
+    y_k ~ MVT_nu(mu_k 1, Sigma_k),   Sigma_k = sigma_k^2 I + s_q^2 1 1^T
 
-Pointwise log-likelihood for model comparison is grouped by run (the points of one curve are not
-independent) and, since runs share ``delta``, uses the conditional density of a run given the
-others, ``log p(y_r | y_-r, theta)`` (Buerkner, Gabry & Vehtari 2021, non-factorised normal models),
-which is what PSIS-LOO needs.
+This is the density the sampler samples, and it is a proper joint density of the runs, so it
+decomposes by run exactly: the pointwise log-likelihood used by PSIS-LOO is the conditional density
+of a run given the test's other runs, ``log p(y_r | y_-r, theta) = log p(y | theta) - log p(y_-r | theta)``,
+a univariate t (closed form below). Its run mean is ``ybar_k ~ t_nu(mu_k, sigma_k^2 / n_k + s_q^2)``.
+
+Closed forms (Sherman-Morrison), with ``S`` the runs' sum of squared deviations from their mean::
+
+    Q = S / sigma^2 + n (ybar - mu)^2 / (sigma^2 + n s^2),   log|Sigma| = (n-1) log sigma^2 + log(sigma^2 + n s^2)
+    log p(y) = lgamma((nu+n)/2) - lgamma(nu/2) + (nu/2) log nu - (n/2) log pi - log|Sigma| / 2
+               - ((nu+n)/2) log(nu + Q)
+
+and a run given the m = n - 1 others is ``t_{nu+m}(c, v (nu + Q_m) / (nu + m))`` with the normal
+conditional mean ``c = mu + m s^2 / (sigma^2 + m s^2) (ybar_-r - mu)`` and variance
+``v = sigma^2 + sigma^2 s^2 / (sigma^2 + m s^2)`` and ``Q_m`` the quadratic form of the others.
+Why the discrepancy: if the model cannot follow the data, the misfit does not average away over runs,
+so the credible bands stay as wide as the misfit instead of shrinking as 1/sqrt(n). Phase deviations
+are wrapped to [-pi, pi).
 """
 
 from __future__ import annotations
@@ -31,9 +42,13 @@ from .damper import Damper
 from .fem import dynamic_stiffness
 from .priors import Prior
 
-__all__ = ["TestLikelihood", "JointLikelihood"]
+__all__ = ["NU_MIN", "TestLikelihood", "JointLikelihood"]
 
-_LOG_2PI = np.log(2 * np.pi)
+NU_MIN = 2.0
+"""Least degrees of freedom of a line's noise level (a line whose sigma rests on its own runs only)."""
+
+_NU_MAX = 1e6  # a known sigma (infinite dof) is taken as this: the normal limit to ~1e-9 in log density
+_MODEL_ERROR = ("sigma_mag", "sigma_phase")
 
 
 def _wrap(a):
@@ -41,19 +56,31 @@ def _wrap(a):
     return np.remainder(a + np.pi, 2 * np.pi) - np.pi
 
 
+def _mvt_const(nu, n):
+    """The theta-free part of the MVT log density of n runs: ``lgamma((nu+n)/2) - lgamma(nu/2) + nu/2 log nu - n/2 log pi``."""
+    return gammaln((nu + n) / 2) - gammaln(nu / 2) + 0.5 * nu * np.log(nu) - 0.5 * n * np.log(np.pi)
+
+
 class TestLikelihood:
-    """Log-posterior of one test for the sampler: bound data, picklable, vectorised.
+    """Log-posterior of one test for the sampler: bound data, picklable, vectorised, parameters by name.
 
     Parameters
     ----------
     damper : Damper
     prior : Prior
+        Its ``model_names`` go to the forward model; ``sigma_mag``/``sigma_phase``, when the prior has
+        them, are the discrepancy scales (without them: the noise-only likelihood).
     freq_hz : ndarray, shape (n_freq,)
     magnitude : ndarray, shape (n_runs, n_freq)
         Cleaned runs, |F/X| [N/m]; NaN where a run lacks a line.
     phase_deg : ndarray, shape (n_runs, n_freq)
     sigma_logmag, sigma_phase : ndarray, shape (n_freq,)
-        Run-to-run scatter of one run: natural-log magnitude and phase [rad].
+        Noise model: scatter of one run, natural-log magnitude and phase [rad].
+    noise_dof : array_like, shape (2, n_freq) or broadcastable, optional
+        Degrees of freedom behind the sigmas (``NoiseModel.dof_logmag``, ``dof_phase``): the pooled
+        ``sum (n_k - 1)``. The Student-t takes ``nu = max(noise_dof - (n - 1), NU_MIN)``: the
+        neighbours' share, the line's own runs entering through the likelihood itself. ``inf`` for a
+        known sigma (normal); default: sigma from the line's own runs only (``nu = NU_MIN``).
     fixed : dict, optional
         Model parameters held fixed (not sampled), passed to the forward model.
     model : callable, optional
@@ -63,13 +90,14 @@ class TestLikelihood:
         Commanded amplitude per line (kept with the run; amplitude-dependent models read it).
 
     Calling the object with ``z`` of shape ``(n, ndim)`` (the prior's sampled coordinates) returns
-    the log-posterior, shape ``(n,)``: emcee's ``log_prob`` with ``vectorize=True``.
+    the log-posterior, shape ``(n,)``: emcee's ``log_prob`` with ``vectorize=True``. Every other method
+    takes the parameters by name: ``{name: ndarray (n,)}``.
     """
 
     __test__ = False  # "Test" here is a bench test, not a pytest class
 
     def __init__(self, damper: Damper, prior: Prior, freq_hz, magnitude, phase_deg, sigma_logmag,
-                 sigma_phase, fixed=None, model=None, amplitude_mm_pp=None):
+                 sigma_phase, *, noise_dof=None, fixed=None, model=None, amplitude_mm_pp=None):
         self.damper = damper
         self.prior = prior
         self.freq_hz = np.asarray(freq_hz, dtype=float)
@@ -84,68 +112,72 @@ class TestLikelihood:
         self.sigma = np.stack([np.asarray(sigma_logmag, float), np.asarray(sigma_phase, float)])  # (2, F)
         if not np.all(np.isfinite(self.sigma) & (self.sigma > 0)):
             raise ValueError("noise scales must be finite and > 0")
-        y0 = np.where(self.present, self.y, 0.0)
-        self.ybar = y0.sum(axis=1) / self.n  # (2, F)
-        # phase mean: average the wrapped deviations from the first run's line, so a wrap
-        # between runs cannot corrupt it
-        ref = np.nanmedian(np.where(self.present, self.y[1], np.nan), axis=0)
-        dev = np.where(self.present, _wrap(self.y[1] - ref), 0.0)
-        self.ybar[1] = ref + dev.sum(axis=0) / self.n
-        self.nu = np.maximum(self.n - 1, 1).astype(float)  # dof of the noise estimate per line
-        self._t_const = gammaln((self.nu + 1) / 2) - gammaln(self.nu / 2) - 0.5 * np.log(self.nu * np.pi)
+        own = np.broadcast_to(np.maximum(self.n - 1, 0).astype(float), self.sigma.shape)
+        pooled = own if noise_dof is None else np.broadcast_to(np.asarray(noise_dof, float), self.sigma.shape)
+        self.nu = np.clip(pooled - own, NU_MIN, _NU_MAX)  # (2, F)
+        # run deviations about their mean: phase about the median run, so a wrap cannot corrupt them
+        ref = np.stack([np.zeros(self.freq_hz.shape), np.nanmedian(np.where(self.present, self.y[1], np.nan), axis=0)])
+        d = np.where(self.present, self.y - ref[:, None, :], 0.0)
+        d[1] = np.where(self.present, _wrap(d[1]), 0.0)
+        self._ref, self._d = ref, d  # (2, F), (2, n_runs, F): each run's deviation from ref
+        self.ybar = ref + d.sum(axis=1) / self.n  # (2, F)
+        dev = np.where(self.present, d - (self.ybar - ref)[:, None, :], 0.0)
+        self.ss = np.sum(dev * dev, axis=1)  # (2, F): S
+        self._const = _mvt_const(self.nu, self.n)
         self.fixed = dict(fixed or {})
         self.model = dynamic_stiffness if model is None else model
-        self._imodel = [prior.names.index(n) for n in prior.model_names]
-        # a prior without the model-error scales gives the noise-only likelihood (s_q = 0): the
-        # model must explain the run means within the noise (``sbcal.diagnose`` compares so)
-        self._ierr = ([prior.names.index("sigma_mag"), prior.names.index("sigma_phase")]
-                      if "sigma_mag" in prior.names else None)
+        self._errors = all(n in prior.names for n in _MODEL_ERROR)
         self._poly = [n for n in prior.model_names if n.startswith("q")]
 
     # -- pieces -----------------------------------------------------------------------------
-    def params(self, x) -> dict:
-        """Natural-unit rows ``(n, ndim)`` -> forward-model keyword arguments."""
-        x = np.atleast_2d(x)
-        p = {n: x[:, i] for n, i in zip(self.prior.model_names, self._imodel)}
+    def model_params(self, params: dict) -> dict:
+        """The forward model's keyword arguments: the prior's model parameters plus ``fixed``."""
+        p = {n: np.atleast_1d(params[n]) for n in self.prior.model_names}
         p.update(self.fixed)
         return p
 
-    def predict(self, x) -> np.ndarray:
+    def predict(self, params: dict) -> np.ndarray:
         """Model curves ``mu``: shape ``(2, n, n_freq)`` (log-magnitude, phase [rad])."""
-        fuu = self.model(self.damper, self.freq_hz, **self.params(x))
+        fuu = self.model(self.damper, self.freq_hz, **self.model_params(params))
         return np.stack([np.log(np.abs(fuu)), np.angle(fuu)])
 
-    def _residual(self, mu):
+    def residual(self, mu) -> np.ndarray:
+        """Run mean minus model, phase wrapped: ``(2, n, n_freq)``."""
         r = self.ybar[:, None, :] - mu
         r[1] = _wrap(r[1])
         return r
 
-    def _valid(self, x) -> np.ndarray:
+    def valid(self, params: dict) -> np.ndarray:
         """Support constraints beyond the box: a polynomial EJ(omega) must stay > 0 on the grid."""
+        n = len(np.atleast_1d(params[self.prior.names[0]]))
         if not self._poly:
-            return np.ones(len(x), bool)
+            return np.ones(n, bool)
         omega = 2 * np.pi * self.freq_hz
-        p = self.params(x)
-        ej = sum(p[q][:, None] * omega ** (int(q[1:]) - 1) for q in self._poly)
+        ej = sum(np.atleast_1d(params[q])[:, None] * omega ** (int(q[1:]) - 1) for q in self._poly)
         return np.all(ej > 0, axis=1)
 
-    def _s2(self, x) -> np.ndarray:
-        """Model-error variances ``s_q^2``: shape (2, n, 1) (zeros for the noise-only likelihood)."""
-        if self._ierr is None:
-            return np.zeros((2, len(x), 1))
-        return x[:, self._ierr].T[:, :, None] ** 2
+    def discrepancy_variance(self, params: dict, n: int) -> np.ndarray:
+        """``s_q^2``: shape (2, n, 1) (zeros for the noise-only likelihood)."""
+        if not self._errors:
+            return np.zeros((2, n, 1))
+        return np.stack([np.atleast_1d(params[q]) for q in _MODEL_ERROR])[:, :, None] ** 2
 
-    def log_likelihood(self, x, mu=None) -> np.ndarray:
-        """Log-likelihood of the run means, natural units ``(n, ndim)`` -> ``(n,)``.
+    def _parts(self, params, mu):
+        mu = self.predict(params) if mu is None else mu
+        return mu, self.discrepancy_variance(params, mu.shape[1]), self.sigma[:, None, :] ** 2
+
+    def log_likelihood(self, params: dict, mu=None) -> np.ndarray:
+        """Log density of all runs (multivariate t per line and quantity): ``(n,)``.
 
         ``mu`` (as :meth:`predict` returns) skips the forward model when the caller has it.
         """
-        x = np.atleast_2d(x)
-        mu = self.predict(x) if mu is None else mu
-        var = self.sigma[:, None, :] ** 2 / self.n + self._s2(x)
-        r = self._residual(mu)
-        # Student-t log-density with nu = n - 1 and scale sqrt(var)
-        lp = self._t_const - 0.5 * np.log(var) - 0.5 * (self.nu + 1) * np.log1p(r * r / (self.nu * var))
+        mu, s2, sig2 = self._parts(params, mu)
+        r = self.residual(mu)
+        big = sig2 + self.n * s2
+        q = self.ss[:, None, :] / sig2 + self.n * r * r / big
+        nu = self.nu[:, None, :]
+        lp = (self._const[:, None, :] - 0.5 * ((self.n - 1) * np.log(sig2) + np.log(big))
+              - 0.5 * (nu + self.n) * np.log(nu + q))
         return np.sum(lp, axis=(0, 2))
 
     def __call__(self, z) -> np.ndarray:
@@ -153,68 +185,85 @@ class TestLikelihood:
         out = self.prior.log_prob(z)
         ok = np.isfinite(out)
         if ok.any():
-            x = self.prior.to_natural(z[ok])
-            valid = self._valid(x)
-            lp = np.full(len(x), -np.inf)
+            params = self.prior.params(z[ok])
+            valid = self.valid(params)
+            lp = np.full(int(ok.sum()), -np.inf)
             if valid.any():
-                lp[valid] = self.log_likelihood(x[valid])
+                with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+                    lp[valid] = self.log_likelihood({k: v[valid] for k, v in params.items()})
             lp[~np.isfinite(lp)] = -np.inf  # a NaN would stop emcee
             out[ok] = lp
         return out
 
-    # -- for stored draws ---------------------------------------------------------------------
-    def _delta_posterior(self, r, s2, n):
-        """Mean and variance of delta given ``n`` runs whose mean deviates by ``r`` from ``mu``."""
-        if self._ierr is None:  # no discrepancy term
-            return np.zeros_like(r), np.zeros_like(r)
-        prec = 1.0 / s2 + n / self.sigma[:, None, :] ** 2
-        v = 1.0 / prec
-        return v * n / self.sigma[:, None, :] ** 2 * r, v
+    # -- by run, for LOO, checks and predictions -----------------------------------------------
+    def _conditional(self, mu, s2, sig2, dsum, ss, m):
+        """The t of one more run given ``m`` runs (deviation sum ``dsum`` from ref, squares ``ss``):
+        location offset from ``mu``, scale^2 and dof, each (2, n, F)."""
+        mean_m = np.where(m > 0, dsum / np.maximum(m, 1), 0.0)  # mean deviation of the m runs from ref
+        r = (self._ref + mean_m)[:, None, :] - mu
+        r[1] = _wrap(r[1])
+        big = sig2 + m * s2
+        w = np.where(m > 0, m * s2 / big, 0.0)
+        q = ss[:, None, :] / sig2 + m * r * r / big
+        nu = self.nu[:, None, :]
+        var = (sig2 + sig2 * s2 / big) * (nu + q) / (nu + m)
+        return w * r, var, nu + m
 
-    def pointwise_log_likelihood(self, x, mu=None) -> np.ndarray:
-        """``log p(y_r | y_-r, theta)`` per run: ``(n, n_runs)`` (magnitude and phase summed)."""
-        x = np.atleast_2d(x)
-        mu = self.predict(x) if mu is None else mu  # (2, n, F)
-        s2 = self._s2(x)
+    def pointwise_log_likelihood(self, params: dict, mu=None) -> np.ndarray:
+        """``log p(y_r | y_-r, theta)`` per run: ``(n, n_runs)`` (lines and quantities summed).
+
+        Exactly ``log_likelihood`` of all runs minus that of the runs without r (the t's closed form).
+        """
+        mu, s2, sig2 = self._parts(params, mu)
         n_runs = self.y.shape[1]
-        out = np.zeros((len(x), n_runs))
-        y0 = np.where(self.present, self.y, 0.0)
+        out = np.zeros((mu.shape[1], n_runs))
+        dsum = self._d.sum(axis=1)
+        dbar = dsum / self.n
         for r in range(n_runs):
             pres = self.present[r]
-            n_other = self.n - pres
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean_other = np.where(n_other > 0, (self.ybar * self.n - y0[:, r]) / np.maximum(n_other, 1), 0.0)
-            dev = mean_other[:, None, :] - mu
-            dev[1] = _wrap(dev[1])
-            m, v = self._delta_posterior(dev, s2, n_other)
-            res = y0[:, r][:, None, :] - mu - m
-            res[1] = _wrap(res[1])
-            var = self.sigma[:, None, :] ** 2 + v
-            lp = -0.5 * (res * res / var + np.log(var) + _LOG_2PI)
+            m = self.n - pres
+            # the others' squared deviations about their own mean: S - n/m (d_r - dbar)^2
+            ss_other = np.where(pres & (m > 0), self.ss - self.n / np.maximum(m, 1) * (self._d[:, r] - dbar) ** 2,
+                                self.ss)
+            shift, var, dof = self._conditional(mu, s2, sig2, dsum - self._d[:, r], np.maximum(ss_other, 0.0), m)
+            e = (self._ref + self._d[:, r])[:, None, :] - mu - shift
+            e[1] = _wrap(e[1])
+            lp = (gammaln((dof + 1) / 2) - gammaln(dof / 2) - 0.5 * np.log(dof * np.pi * var)
+                  - 0.5 * (dof + 1) * np.log1p(e * e / (dof * var)))
             out[:, r] = np.sum(np.where(pres, lp, 0.0), axis=(0, 2))
         return out
 
-    def predictive(self, x, rng: np.random.Generator) -> np.ndarray:
-        """One posterior-predictive new run per row: ``(2, n, n_freq)`` (log-magnitude, phase [rad]).
+    def new_run(self, params: dict, mu=None):
+        """The t of a new run given all recorded runs: ``(location, scale, dof)``, each (2, n, n_freq)."""
+        mu, s2, sig2 = self._parts(params, mu)
+        shift, var, dof = self._conditional(mu, s2, sig2, self._d.sum(axis=1), self.ss, self.n)
+        return mu + shift, np.sqrt(var), dof
 
-        ``y_new = mu + delta + eps`` with delta from its posterior given all runs; ``eps`` is
-        Student-t with the noise estimate's ``nu`` degrees of freedom (see the module docstring).
+    def mean_scale(self, params: dict, mu=None):
+        """The t of the run mean given the runs' deviations: ``(scale, dof)``, each (2, n, n_freq).
+
+        ``ybar - mu ~ t_{nu+n-1}(0, (sigma^2/n + s^2) (nu + S/sigma^2) / (nu + n - 1))`` (the deviations
+        inform the line's noise level; ``sbcal diagnose`` standardises residuals with it).
         """
-        x = np.atleast_2d(x)
-        mu = self.predict(x)
-        m, v = self._delta_posterior(self._residual(mu), self._s2(x), self.n)
-        sd = np.sqrt(self.sigma[:, None, :] ** 2 + v)
-        return mu + m + sd * rng.standard_t(self.nu, size=mu.shape)
+        mu, s2, sig2 = self._parts(params, mu)
+        nu = self.nu[:, None, :]
+        dof = nu + self.n - 1
+        var = (sig2 / self.n + s2) * (nu + self.ss[:, None, :] / sig2) / dof
+        return np.sqrt(var), np.broadcast_to(dof, var.shape)
 
-    def thesis_cost(self, x) -> np.ndarray:
+    def predictive(self, params: dict, rng: np.random.Generator) -> np.ndarray:
+        """One posterior-predictive new run per parameter set: ``(2, n, n_freq)`` (log-magnitude, phase [rad])."""
+        loc, scale, dof = self.new_run(params)
+        return loc + scale * rng.standard_t(np.broadcast_to(dof, loc.shape))
+
+    def thesis_cost(self, params: dict) -> np.ndarray:
         """The thesis's GA fitness (Eq. 4.5) on the run means: ``(n,)``.
 
         ``sqrt(W1 sum W3 (a - b)^2 / a^2 + W2 sum W3 (x - y)^2 / x^2)``: relative magnitude and phase
         errors (phase in degrees), ``W1 = 0.3``, ``W2 = 0.7``, ``W3`` the local frequency step
         normalised to mean 1 (the grid is uneven).
         """
-        x = np.atleast_2d(x)
-        fuu = self.model(self.damper, self.freq_hz, **self.params(x))
+        fuu = self.model(self.damper, self.freq_hz, **self.model_params(params))
         a = np.exp(self.ybar[0])
         ph = np.degrees(self.ybar[1])
         w3 = np.gradient(self.freq_hz) if self.freq_hz.size > 1 else np.ones(1)
@@ -225,7 +274,7 @@ class TestLikelihood:
 
 
 class JointLikelihood:
-    """One parameter set for several tests: the log-posterior over all their run means.
+    """One parameter set for several tests: the log-posterior over all their runs.
 
     The forward model runs once on all the tests' lines together (a physics that ties amplitudes
     together, such as strand slip, gets every test's commanded amplitude per line); each test keeps
@@ -238,8 +287,7 @@ class JointLikelihood:
     prior : Prior
         Over the shared parameters.
     model : callable
-        ``model(damper, freq_hz, **params) -> complex (n, n_lines)`` on the concatenated lines; a
-        :class:`sbcal.extensions.SlipModel` built on the concatenated amplitudes.
+        ``model(damper, freq_hz, **params) -> complex (n, n_lines)`` on the concatenated lines.
     """
 
     def __init__(self, likes, prior: Prior, model):
@@ -249,30 +297,21 @@ class JointLikelihood:
         self.model = model
         self.freq_hz = np.concatenate([lk.freq_hz for lk in self.likes])
         self._split = np.cumsum([lk.freq_hz.size for lk in self.likes])[:-1]
-        self._imodel = [prior.names.index(n) for n in prior.model_names]
 
-    def params(self, x) -> dict:
-        x = np.atleast_2d(x)
-        return {n: x[:, i] for n, i in zip(self.prior.model_names, self._imodel)}
-
-    def predict(self, x) -> list:
+    def predict(self, params: dict) -> list:
         """Model curves per test: a list of ``(2, n, n_freq_t)`` (log-magnitude, phase [rad])."""
-        fuu = self.model(self.damper, self.freq_hz, **self.params(x))
+        p = {n: np.atleast_1d(params[n]) for n in self.prior.model_names}
+        fuu = self.model(self.damper, self.freq_hz, **p)
         mu = np.stack([np.log(np.abs(fuu)), np.angle(fuu)])
         return np.split(mu, self._split, axis=2)
 
-    def _valid(self, x) -> np.ndarray:
-        return np.ones(len(np.atleast_2d(x)), bool)
+    def log_likelihood(self, params: dict) -> np.ndarray:
+        return sum(lk.log_likelihood(params, mu) for lk, mu in zip(self.likes, self.predict(params)))
 
-    def log_likelihood(self, x) -> np.ndarray:
-        x = np.atleast_2d(x)
-        return sum(lk.log_likelihood(x, mu) for lk, mu in zip(self.likes, self.predict(x)))
-
-    def pointwise_log_likelihood(self, x) -> np.ndarray:
+    def pointwise_log_likelihood(self, params: dict) -> np.ndarray:
         """Per run of every test, tests in order: ``(n, sum of n_runs)``."""
-        x = np.atleast_2d(x)
-        return np.concatenate([lk.pointwise_log_likelihood(x, mu) for lk, mu in zip(self.likes, self.predict(x))],
-                              axis=1)
+        return np.concatenate([lk.pointwise_log_likelihood(params, mu)
+                               for lk, mu in zip(self.likes, self.predict(params))], axis=1)
 
     def __call__(self, z) -> np.ndarray:
         z = np.atleast_2d(z)
@@ -280,6 +319,6 @@ class JointLikelihood:
         ok = np.isfinite(out)
         if ok.any():
             with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-                lp = self.log_likelihood(self.prior.to_natural(z[ok]))
+                lp = self.log_likelihood(self.prior.params(z[ok]))
             out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
         return out

@@ -1,7 +1,7 @@
-"""Prior boxes (``priors/*.toml``, schema in ``docs/priors.md``) and the sampled coordinates.
+"""Prior boxes (``priors/*.toml``, schema in ``docs/calibration.md``) and the sampled coordinates.
 
 A :class:`Prior` is the product of independent uniform or log-uniform boxes over the parameters
-of one named set (``theta1`` ...) plus the likelihood's model-error scales. The sampler works in
+of one named set (``theta1`` ...) plus the likelihood's model-error scales, reached by name. The sampler works in
 coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter and
 ``z = log(x)`` for a log-uniform one, so the log-prior is 0 inside the box and ``-inf`` outside.
 """
@@ -20,26 +20,43 @@ from .damper import Damper
 from .errors import InputError
 from .fem import PARAMETER_NAMES
 
-__all__ = ["Prior", "load_prior", "parameter_sets", "extension_prior"]
+__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior"]
 
 _DISTS = ("uniform", "loguniform")
 _MODEL_ERROR = ("sigma_mag", "sigma_phase")
 
 
+def canonical_order(names) -> tuple:
+    """Parameter names in sbcal's canonical order, whatever order a prior file lists them in.
+
+    The forward model's vocabulary (:data:`sbcal.fem.PARAMETER_NAMES`) first in its own order, then
+    any other name (extension and law parameters) alphabetically, then the model-error scales. The
+    sampler's coordinates follow this order, so permuting a set in a prior file changes nothing.
+    """
+    rank = {n: i for i, n in enumerate(PARAMETER_NAMES)}
+    names = list(dict.fromkeys(names))
+    return tuple(sorted(names, key=lambda n: (n in _MODEL_ERROR, _MODEL_ERROR.index(n) if n in _MODEL_ERROR else 0,
+                                              n not in rank, rank.get(n, 0), n)))
+
+
 @dataclass(frozen=True)
 class Prior:
-    """Independent boxes over one parameter set, in natural units.
+    """Independent boxes over named parameters, in natural units.
 
     Attributes
     ----------
     paramset : str
         Name of the set (e.g. ``"theta1"``).
     names : tuple of str
-        The sampled parameters, model parameters first, then ``sigma_mag``, ``sigma_phase``.
+        The sampled parameters in canonical order (:func:`canonical_order`): model parameters first,
+        then ``sigma_mag``, ``sigma_phase`` where the set has them.
     log_scale : ndarray of bool, shape (ndim,)
         True where the box is log-uniform (sampled as ``log x``).
     lower, upper : ndarray, shape (ndim,)
         Box bounds in natural units.
+
+    Construct with :meth:`from_boxes` (any order of names); code outside this class reaches a
+    parameter by its name (:meth:`params`, :meth:`z_of`), never by its position.
     """
 
     paramset: str
@@ -47,6 +64,14 @@ class Prior:
     log_scale: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+
+    @classmethod
+    def from_boxes(cls, paramset: str, boxes: dict) -> "Prior":
+        """``boxes``: name -> ``(log_scale, lower, upper)``, in any order."""
+        names = canonical_order(boxes)
+        rows = [boxes[n] for n in names]
+        return cls(paramset=paramset, names=names, log_scale=np.array([bool(r[0]) for r in rows]),
+                   lower=np.array([float(r[1]) for r in rows]), upper=np.array([float(r[2]) for r in rows]))
 
     @property
     def ndim(self) -> int:
@@ -58,10 +83,17 @@ class Prior:
         return tuple(n for n in self.names if n not in _MODEL_ERROR)
 
     def __post_init__(self):
+        if tuple(self.names) != canonical_order(self.names):
+            raise ValueError(f"Prior names must be in canonical order (use Prior.from_boxes): {self.names}")
         # the box in sampled coordinates, computed once: log_prob runs on every sampler step
         for name, bound in (("z_lower", self.lower), ("z_upper", self.upper)):
             z = np.where(self.log_scale, np.log(np.where(self.log_scale, bound, 1.0)), bound)
             object.__setattr__(self, name, z)
+
+    def box(self, name: str) -> tuple[bool, float, float]:
+        """``(log_scale, lower, upper)`` of one parameter."""
+        i = self.names.index(name)
+        return bool(self.log_scale[i]), float(self.lower[i]), float(self.upper[i])
 
     def to_natural(self, z) -> np.ndarray:
         """Sampled coordinates ``(n, ndim)`` -> natural units ``(n, ndim)``."""
@@ -73,6 +105,19 @@ class Prior:
         x = np.atleast_2d(np.asarray(x, dtype=float))
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(self.log_scale, np.log(x), x)
+
+    def params(self, z) -> dict:
+        """Sampled coordinates ``(n, ndim)`` -> ``{name: natural values (n,)}``."""
+        x = self.to_natural(z)
+        return {n: x[:, i] for i, n in enumerate(self.names)}
+
+    def z_of(self, params: dict) -> np.ndarray:
+        """``{name: natural value(s)}`` (every parameter of the prior) -> sampled coordinates ``(n, ndim)``."""
+        missing = [n for n in self.names if n not in params]
+        if missing:
+            raise KeyError(f"no value for {', '.join(missing)}")
+        cols = np.broadcast_arrays(*(np.atleast_1d(np.asarray(params[n], float)) for n in self.names))
+        return self.to_z(np.stack(cols, axis=1))
 
     def log_prob(self, z) -> np.ndarray:
         """Log-density in ``z`` (0 inside the box, ``-inf`` outside): shape ``(n,)``."""
@@ -176,18 +221,18 @@ def load_prior(paramset: str, damper: Damper, path=None) -> Prior:
             raise InputError(f"{src}: key 'sets.{paramset}': unknown parameter {n!r}")
     table = doc.get("parameters", {})
     errors = doc.get("model_error", {})
-    rows = []
+    if len(set(names)) != len(names):
+        raise InputError(f"{src}: key 'sets.{paramset}': a parameter is listed twice")
+    boxes = {}
     for n in names:
         if n not in table:
             raise InputError(f"{src}: key 'parameters.{n}': missing (used by set {paramset!r})")
-        rows.append(_bounds(src, f"parameters.{n}", table[n], n, damper))
+        boxes[n] = _bounds(src, f"parameters.{n}", table[n], n, damper)
     for n in _MODEL_ERROR:
         if n not in errors:
             raise InputError(f"{src}: key 'model_error.{n}': missing")
-        rows.append(_bounds(src, f"model_error.{n}", errors[n], n, damper))
-    log_scale, lo, hi = (np.array(c) for c in zip(*rows))
-    return Prior(paramset=paramset, names=tuple(names) + _MODEL_ERROR, log_scale=log_scale.astype(bool),
-                 lower=lo.astype(float), upper=hi.astype(float))
+        boxes[n] = _bounds(src, f"model_error.{n}", errors[n], n, damper)
+    return Prior.from_boxes(paramset, boxes)
 
 
 def extension_prior(effect: str, damper: Damper, path=None, base_path=None) -> Prior:
@@ -215,15 +260,13 @@ def extension_prior(effect: str, damper: Damper, path=None, base_path=None) -> P
         raise InputError(f"{src}: key '{effect}.base': expected a list of parameter names")
     base_doc, base_src = _read(base_path)
     table = base_doc.get("parameters", {})
-    rows, names = [], []
+    boxes = {}
     for n in base:
         if n not in PARAMETER_NAMES or n not in table:
             raise InputError(f"{src}: key '{effect}.base': {n!r} is not a parameter of {base_src}")
-        rows.append(_bounds(base_src, f"parameters.{n}", table[n], n, damper))
-        names.append(n)
+        boxes[n] = _bounds(base_src, f"parameters.{n}", table[n], n, damper)
     for n, box in spec.get("parameters", {}).items():
-        rows.append(_bounds(src, f"{effect}.parameters.{n}", box, n, damper))
-        names.append(n)
-    log_scale, lo, hi = (np.array(c) for c in zip(*rows))
-    return Prior(paramset=effect, names=tuple(names), log_scale=log_scale.astype(bool),
-                 lower=lo.astype(float), upper=hi.astype(float))
+        if n in boxes:
+            raise InputError(f"{src}: key '{effect}.parameters.{n}': also a base parameter")
+        boxes[n] = _bounds(src, f"{effect}.parameters.{n}", box, n, damper)
+    return Prior.from_boxes(effect, boxes)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ._io import atomic_path
 from .errors import InputError
+from .sampler import POLICY
 
 __all__ = ["build_report"]
 
@@ -216,7 +217,6 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
 
     from .amplitude import map_dampers, plot_map
     from .bench import THESIS_TESTS, load_bench
-    from .damper import bundled_dampers, resolve_damper
     from .runs import read_run, run_dir
 
     say = progress or (lambda text: None)
@@ -258,7 +258,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                 "trace": _trace_figure(idata, names, figs / f"{stem}_trace.png"),
             }
             for n, p in s["parameters"].items():
-                flag = (p["r_hat"] > 1.01) or (p["ess_bulk"] < 400) or not s.get("converged", True)
+                flag = not (p["r_hat"] <= POLICY["rhat_max"] and min(p["ess_bulk"], p.get("ess_tail", 0)) >= POLICY["ess_min"]) \
+                    or not s.get("converged", False)
                 item.rows.append({"name": n, "median": _fmt(p["median"]), "q05": _fmt(p["q05"]), "q95": _fmt(p["q95"]),
                                   "r_hat": _fmt(p["r_hat"], 4), "ess": _fmt(p["ess_bulk"], 4), "tau": _fmt(p["tau"], 3),
                                   "flag": flag})
@@ -285,10 +286,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                         "diagnosis": _diagnosis(runs / dname / "diagnose.json", figs)})
 
     say("report: amplitude map")
-    known = set(bundled_dampers())
     try:
-        docs = map_dampers(runs, paramset, seed=seed,
-                           ej_static=lambda n: resolve_damper(n).ej_static if n in known else None)
+        docs = map_dampers(runs, paramset, seed=seed)
     except InputError as e:
         docs, map_note = {}, str(e)
     else:

@@ -1,46 +1,46 @@
-"""Stored runs: ArviZ netCDF + ``summary.json``. The only module that imports ArviZ.
+"""Stored runs: ArviZ netCDF + ``summary.json`` (ArviZ itself is reached through :mod:`sbcal.stats`).
 
 Layout: ``<out>/<damper>/<test>/<paramset>/posterior.nc`` (groups posterior, sample_stats,
 log_likelihood, posterior_predictive, observed_data, constant_data; attrs hold the config as
-JSON, the seed and package versions) and ``summary.json`` beside it. Both are written atomically;
-``summary.json`` is written last, so a directory without it holds no finished run.
+JSON, the seed, the convergence verdict and package versions) and ``summary.json`` beside it. Both
+are written atomically; ``summary.json`` is written last, so a directory without it holds no
+finished run.
 
 Dims: ``chain`` is an independently seeded emcee ensemble; ``draw`` runs over its walkers'
-thinned draws, walker after walker. ``run`` is a bench run id, ``freq`` a frequency line.
+thinned draws, walker after walker (the engine's chain structure, so ArviZ's R-hat, ESS and LOO
+relative efficiency read them as the engine does). ``run`` is a bench run id, ``freq`` a frequency line.
 """
 
 from __future__ import annotations
 
 import json
 import platform
-import warnings
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import xarray as xr
 
-with warnings.catch_warnings():
-    warnings.simplefilter("ignore", FutureWarning)  # ArviZ 0.x announces its 1.x refactor on import
-    import arviz as az
-
 from ._io import atomic_path, write_json
 from .errors import InputError
+from .stats import arviz_version, inference_data, read_netcdf
 
 __all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
-           "loo_pointwise", "posterior_draws", "rhat_ess"]
+           "posterior_draws", "parameter_summary", "StoredTest"]
 
 SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
 
 
 def versions() -> dict:
     """Versions of sbcal and the libraries that shape its numbers."""
-    import emcee
+    from importlib.metadata import version
+
     import scipy
 
     from . import __version__
 
     return {"sbcal": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "scipy": scipy.__version__, "emcee": emcee.__version__, "arviz": az.__version__}
+            "scipy": scipy.__version__, "emcee": version("emcee"), "arviz": arviz_version()}
 
 
 def run_dir(out, damper: str, test: str, paramset: str) -> Path:
@@ -48,12 +48,13 @@ def run_dir(out, damper: str, test: str, paramset: str) -> Path:
     return Path(out) / damper / test / paramset
 
 
-def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict) -> "az.InferenceData":
+def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict):
     """Pack a :class:`sbcal.sampler.SampleResult` and its likelihood into InferenceData.
 
     Parameters
     ----------
     result : SampleResult
+        With the pointwise log-likelihood by run (the engine computes it on the kept draws).
     like : TestLikelihood
         The likelihood sampled (data, noise model, model).
     runs : array_like of int, shape (n_runs,)
@@ -64,12 +65,11 @@ def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict
     meta : dict
         Anything JSON-serialisable to keep (damper, test, config, command line ...).
     """
-    n_chain, n_draw, ndim = result.x.shape
-    flat = result.x.reshape(-1, ndim)
+    n_chain, n_draw = result.log_prob.shape
+    params = result.flat()
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))  # own stream: predictive draws
-    pred = like.predictive(flat, rng).reshape(2, n_chain, n_draw, -1).astype(np.float32)
-    model = like.predict(flat).reshape(2, n_chain, n_draw, -1).astype(np.float32)
-    loglik = like.pointwise_log_likelihood(flat).reshape(n_chain, n_draw, -1)
+    pred = like.predictive(params, rng).reshape(2, n_chain, n_draw, -1).astype(np.float32)
+    model = like.predict(params).reshape(2, n_chain, n_draw, -1).astype(np.float32)
     runs = np.asarray(runs, dtype=int)
     freq = like.freq_hz
     attrs = {
@@ -77,12 +77,13 @@ def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict
         "seed": int(seed),
         "versions": json.dumps(versions(), sort_keys=True),
         "removed_runs": json.dumps([int(r) for r in removed_runs]),
+        "convergence": json.dumps(result.convergence_dict(), sort_keys=True),
     }
     obs = np.where(like.present, like.y, np.nan)
-    idata = az.from_dict(
-        posterior={n: result.x[:, :, i] for i, n in enumerate(result.names)},
+    idata = inference_data(
+        posterior=dict(result.draws),
         sample_stats={"lp": result.log_prob},
-        log_likelihood={"runs": loglik},
+        log_likelihood={"runs": result.log_likelihood},
         posterior_predictive={"logmag": pred[0], "phase": pred[1], "model_logmag": model[0], "model_phase": model[1]},
         constant_data={"freq_hz": freq, "amplitude_mm_pp": like.amplitude_mm_pp,
                        "noise_logmag": like.sigma[0], "noise_phase": like.sigma[1], "n_runs": like.n},
@@ -100,32 +101,36 @@ def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict
     return idata
 
 
-def summarize(idata, result) -> dict:
-    """The ``summary.json`` document (other programs read it: keep the keys)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rhat = az.rhat(idata, method="rank")
-        ess = az.ess(idata, method="bulk")
-    params = {}
-    for i, n in enumerate(result.names):
-        v = result.x[:, :, i].ravel()
-        q05, q50, q95 = np.quantile(v, SUMMARY_QUANTILES)
-        params[n] = {"median": float(q50), "q05": float(q05), "q95": float(q95),
-                     "r_hat": float(rhat[n]), "ess_bulk": float(ess[n]), "tau": float(np.mean(result.tau[:, i]))}
-    conv = all(p["r_hat"] <= 1.01 for p in params.values()) and result.converged
-    return {
-        "parameters": params,
+def parameter_summary(result) -> dict:
+    """Per parameter: median, 90 % interval and the engine's diagnostics (JSON-ready)."""
+    out = {}
+    for n in result.names:
+        q05, q50, q95 = np.quantile(result.draws[n], SUMMARY_QUANTILES)
+        out[n] = {"median": float(q50), "q05": float(q05), "q95": float(q95), "r_hat": result.r_hat[n],
+                  "ess_bulk": result.ess_bulk[n], "ess_tail": result.ess_tail[n], "tau": result.tau[n]}
+    return out
+
+
+def summarize(idata, result, *, point_fit: dict | None = None) -> dict:
+    """The ``summary.json`` document (other programs read it: keep the keys).
+
+    R-hat and ESS are the engine's, computed by ArviZ on the very draws stored in ``idata``: the
+    numbers ``arviz.summary`` prints for the stored run.
+    """
+    doc = {
+        "parameters": parameter_summary(result),
         "acceptance": float(np.mean(result.acceptance)),
         "wall_s": float(result.wall_s),
         "seed": int(idata.posterior.attrs["seed"]),
-        "converged": bool(conv),
-        "n_steps": [int(s) for s in result.n_steps],
-        "n_draws": int(result.x.shape[0] * result.x.shape[1]),
-        "ga": result.init.as_dict(),
+        **result.convergence_dict(),
+        "n_draws": int(result.log_prob.size),
         "removed_runs": json.loads(idata.posterior.attrs["removed_runs"]),
         "config": json.loads(idata.posterior.attrs["sbcal_config"]),
         "versions": json.loads(idata.posterior.attrs["versions"]),
     }
+    if point_fit is not None:
+        doc["ga"] = point_fit
+    return doc
 
 
 def write_run(idata, summary: dict, directory) -> Path:
@@ -153,55 +158,30 @@ def read_run(directory):
     s = read_summary(directory)
     if s is None:
         raise InputError(f"{directory}: no finished run (summary.json missing)")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        return az.from_netcdf(str(Path(directory) / "posterior.nc")), s
+    return read_netcdf(Path(directory) / "posterior.nc"), s
 
 
-def loo_pointwise(log_lik) -> np.ndarray:
-    """PSIS-LOO pointwise ELPD of a log-likelihood matrix ``(n_draws, n_points)``: shape (n_points,).
+class StoredTest(NamedTuple):
+    """One finished run of :func:`posterior_draws`: ``test`` label, ``amplitude`` [mm p-p] (None when
+    it changes along the grid, as in ``2-1``), ``draws`` (name -> flattened draws), ``summary``."""
 
-    Where the Pareto smoothing fails (a point whose log-likelihood spans thousands of nats over the
-    draws: the weights fall on one draw and the tail fit is undefined) the plain importance-sampling
-    estimate ``-log mean(exp(-log_lik))`` stands in; such points have Pareto k far above 0.7.
-    """
-    from scipy.special import logsumexp
-
-    ll = np.asarray(log_lik, float)
-    idata = az.from_dict(posterior={"_": np.zeros((1, ll.shape[0]))}, log_likelihood={"y": ll[None]})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # Pareto-k warnings are reported by the callers that care
-        with np.errstate(all="ignore"):
-            res = az.loo(idata, pointwise=True)
-    out = np.asarray(res.loo_i, dtype=float)
-    bad = ~np.isfinite(out)
-    if bad.any():
-        out[bad] = -(logsumexp(-ll[:, bad], axis=0) - np.log(ll.shape[0]))
-    return out
+    test: str
+    amplitude: float | None
+    draws: dict
+    summary: dict
 
 
 def posterior_draws(runs_dir, damper: str, paramset: str, parameters):
-    """Yield ``(test, amplitude, draws)`` for every finished run of a damper, each run read once.
+    """Yield a :class:`StoredTest` for every finished run of a damper, each run read once.
 
-    ``amplitude`` is the test's amplitude [mm p-p] when it is the same on every line, else None
-    (mixed-amplitude tests such as ``2-1``); ``draws`` maps each of ``parameters`` that the run has
-    to its flattened posterior draws.
+    ``draws`` maps each of ``parameters`` that the run has to its flattened posterior draws.
     """
     root = Path(runs_dir) / damper
     if not root.is_dir():
         return
     for d in sorted(p.parent for p in root.glob(f"*/{paramset}/summary.json")):
-        idata, _ = read_run(d)
+        idata, summary = read_run(d)
         amp = np.asarray(idata.constant_data["amplitude_mm_pp"])
         amplitude = float(amp[0]) if np.allclose(amp, amp[0]) else None
-        yield d.parent.name, amplitude, {p: np.asarray(idata.posterior[p]).ravel()
-                                         for p in parameters if p in idata.posterior}
-
-
-def rhat_ess(x, names) -> dict:
-    """Rank-normalised R-hat and bulk ESS per parameter of draws ``(n_chains, n_draws, ndim)``."""
-    idata = az.from_dict(posterior={n: x[:, :, i] for i, n in enumerate(names)})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        r, e = az.rhat(idata), az.ess(idata, method="bulk")
-    return {n: {"r_hat": float(r[n]), "ess_bulk": float(e[n])} for n in names}
+        yield StoredTest(d.parent.name, amplitude, {p: np.asarray(idata.posterior[p]).ravel()
+                                                    for p in parameters if p in idata.posterior}, summary)

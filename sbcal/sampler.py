@@ -1,29 +1,55 @@
-"""Posterior sampling with emcee: several independently seeded ensembles, run to convergence.
+"""The sampling engine: every posterior in sbcal is drawn here, and this is the only user of emcee.
 
-Each ensemble is an ``emcee.EnsembleSampler`` (``vectorize=True``, differential-evolution moves)
-started in a small ball around the point fit of :mod:`sbcal.ga` refined to the posterior mode. An
-ensemble runs in blocks until its chain is longer than ``tau_factor`` integrated autocorrelation
-times (after discarding the first ``burn_fraction`` as burn-in) or ``max_steps`` is reached; the
-kept chain is thinned by half the smallest autocorrelation time. R-hat compares the ensembles
-(R-hat across the walkers of one ensemble is not meaningful: they are not independent).
+One entry point, :func:`sample`, takes a *target* — a log-density over named parameters with its
+prior — a :class:`SamplerConfig` and a seed, and returns a frozen :class:`SampleResult`. A target is any
+picklable object with
+
+- ``prior``: a :class:`sbcal.priors.Prior` (names, boxes, sampled coordinates ``z``);
+- ``__call__(z) -> (n,)``: the log-posterior at a batch of sampled coordinates ``(n, ndim)``
+  (emcee's ``log_prob`` with ``vectorize=True``), ``-inf`` outside the support;
+- optionally ``pointwise_log_likelihood(params) -> (n, n_points)`` with ``params`` by name: then the
+  result carries it on the kept draws, for PSIS-LOO.
+
+Steps:
+
+1. **Start**: the posterior mode, from a differential-evolution search over the prior box (or the
+   caller's ``start``), polished by L-BFGS-B.
+2. **Ensembles**: ``n_ensembles`` independently seeded ``emcee.EnsembleSampler`` ensembles
+   (differential-evolution moves), their walkers drawn from the Laplace approximation at the mode
+   (a small ball where the mode sits on a bound), advanced in lock-step rounds
+   (one process per ensemble when ``workers > 1``; each carries its own random state, so the draws
+   do not depend on the number of workers or on the round lengths).
+3. **The convergence policy** (:data:`POLICY`, the one place it is set): after discarding the first
+   ``burn_fraction`` of every chain, the kept run must be at least ``tau_factor`` integrated
+   autocorrelation times of every parameter long, and across the ensembles R-hat <= 1.01 and bulk and
+   tail ESS >= 400 for every parameter. Rounds continue until it holds or ``max_steps``; a run that
+   stops at the cap is marked ``converged = False`` with the reason.
+4. **Draws**: each ensemble is a chain; its draws are its walkers' thinned steps, walker after walker
+   (thinned by at least half the largest autocorrelation time, and enough to keep ``max_draws``).
 """
 
 from __future__ import annotations
 
+import math
 import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import emcee
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import differential_evolution, minimize
 
-from .ga import PointFit, fit_ga
-from .likelihood import TestLikelihood
+from .progress import progress_bar
+from .stats import convergence
 
-__all__ = ["SamplerConfig", "SampleResult", "sample"]
+__all__ = ["POLICY", "SamplerConfig", "SampleResult", "sample"]
+
+POLICY = {"min_ensembles": 4, "rhat_max": 1.01, "ess_min": 400.0, "tau_factor": 50.0}
+"""sbcal's convergence rule. A configuration may be stricter; a looser ``tau_factor`` needs a stated
+reason (``SamplerConfig.tau_reason``), which every result carries into its output."""
+
+_BIG = 1e100  # the point fit's cost outside the support (differential evolution needs a finite one)
 
 
 @dataclass(frozen=True)
@@ -33,217 +59,360 @@ class SamplerConfig:
     Attributes
     ----------
     nwalkers : int
-        Walkers per ensemble (at least ``2 ndim + 2``; raised automatically).
+        Walkers per ensemble (raised to ``2 ndim + 2`` where needed, and to an even number).
     n_ensembles : int
-        Independently seeded ensembles (the chains of R-hat).
+        Independently seeded ensembles, the chains of R-hat (at least ``POLICY["min_ensembles"]``).
     tau_factor : float
-        Run until the kept chain is longer than this many autocorrelation times.
+        The kept run must be this many autocorrelation times long (``POLICY["tau_factor"]``; less
+        only with ``tau_reason``).
+    tau_reason : str
+        Why a looser ``tau_factor`` is acceptable here; shown wherever the result is reported.
     burn_fraction : float
         Fraction of each chain discarded as burn-in.
-    check_every : int
-        Steps between convergence checks.
+    first_steps : int
+        Steps of the first round (then rounds are sized from the autocorrelation estimate).
     max_steps : int
-        Cap on steps per ensemble (a run that hits it is flagged not converged).
+        Cap on steps per ensemble; a run that stops there is not converged.
     max_draws : int
-        Draws kept per ensemble after thinning (further thinned evenly beyond this).
-    ga_population, ga_generations : int
-        The initialising point fit.
+        Draws kept per ensemble (the thinning grows to keep at most this many).
+    de_population, de_generations : int
+        The differential-evolution search for the start (when the caller gives none).
     workers : int
-        Processes for the ensembles (they are independent; the draws do not depend on it);
-        default 2 where there are 2 cores, 1 runs them in this process.
+        Processes for the ensembles (the draws do not depend on it); 1 runs them in this process.
     """
 
     nwalkers: int = 24
     n_ensembles: int = 4
-    tau_factor: float = 50.0
+    tau_factor: float = POLICY["tau_factor"]
+    tau_reason: str = ""
     burn_fraction: float = 0.2
-    check_every: int = 200
+    first_steps: int = 400
     max_steps: int = 20000
     max_draws: int = 1000
-    ga_population: int = 60
-    ga_generations: int = 200
-    workers: int = max(1, min(2, os.cpu_count() or 1))
+    de_population: int = 48
+    de_generations: int = 150
+    workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
+
+    def __post_init__(self):
+        if self.n_ensembles < POLICY["min_ensembles"]:
+            raise ValueError(f"n_ensembles {self.n_ensembles}: the policy needs >= {POLICY['min_ensembles']}")
+        if self.tau_factor < POLICY["tau_factor"] and not self.tau_reason:
+            raise ValueError(f"tau_factor {self.tau_factor} < {POLICY['tau_factor']} needs a stated tau_reason")
+        if not 0 <= self.burn_fraction < 1 or self.first_steps < 1 or self.max_steps < self.first_steps:
+            raise ValueError("burn_fraction in [0, 1), 1 <= first_steps <= max_steps")
+
+    def policy(self) -> str:
+        """The rule this configuration applies, in words (stored and shown with every result)."""
+        text = (f">= {self.n_ensembles} independently seeded ensembles, R-hat <= {POLICY['rhat_max']} and bulk "
+                f"and tail ESS >= {POLICY['ess_min']:.0f} for every parameter, run >= {self.tau_factor:g} "
+                f"autocorrelation times (at most {self.max_steps} steps)")
+        return text + (f"; {self.tau_factor:g} tau because {self.tau_reason}" if self.tau_reason else "")
 
 
 @dataclass(frozen=True)
 class SampleResult:
-    """Draws of one posterior.
+    """A posterior: draws by parameter name and how they were made.
 
     Attributes
     ----------
     names : tuple of str
-    x : ndarray, shape (n_ensembles, n_draws, ndim)
-        Draws in natural units; within an ensemble the draws of each walker are consecutive.
-    log_prob : ndarray, shape (n_ensembles, n_draws)
-    acceptance : ndarray, shape (n_ensembles,)
-        Mean acceptance fraction.
-    tau : ndarray, shape (n_ensembles, ndim)
-        Integrated autocorrelation time [steps] of the kept chain.
-    n_steps : ndarray of int, shape (n_ensembles,)
-    burn, thin : ndarray of int, shape (n_ensembles,)
+        Parameters, in the prior's (canonical) order.
+    draws : dict of str -> ndarray, shape (n_chains, n_draws)
+        Natural units; a chain is one ensemble, its draws its walkers' thinned steps, walker after walker.
+    log_prob : ndarray, shape (n_chains, n_draws)
+    log_likelihood : ndarray, shape (n_chains, n_draws, n_points), or None
+        The target's pointwise log-likelihood at the draws (when it has one).
+    tau : dict of str -> float
+        Integrated autocorrelation time [steps], the largest over the ensembles.
+    acceptance : ndarray, shape (n_chains,)
+        Mean acceptance fraction of each ensemble.
+    r_hat, ess_bulk, ess_tail : dict of str -> float
+        Across the chains (rank-normalised split R-hat; ArviZ's bulk and tail ESS).
+    n_steps, burn, thin : int
+        Steps per ensemble, of which the first ``burn`` are discarded; kept steps thinned by ``thin``.
     converged : bool
-        Every ensemble reached ``tau_factor`` autocorrelation times.
-    init : PointFit
-        The thesis-cost point fit (reported as the baseline; the chains start from a likelihood fit).
+    reason : str
+        Why not converged ('' when converged).
+    start : dict of str -> float
+        Where the ensembles started (the polished mode).
     wall_s : float
     config : SamplerConfig
     """
 
     names: tuple
-    x: np.ndarray
+    draws: dict
     log_prob: np.ndarray
+    log_likelihood: np.ndarray | None
+    tau: dict
     acceptance: np.ndarray
-    tau: np.ndarray
-    n_steps: np.ndarray
-    burn: np.ndarray
-    thin: np.ndarray
+    r_hat: dict
+    ess_bulk: dict
+    ess_tail: dict
+    n_steps: int
+    burn: int
+    thin: int
     converged: bool
-    init: PointFit
+    reason: str
+    start: dict
     wall_s: float
-    config: SamplerConfig = field(default_factory=SamplerConfig)
+    config: SamplerConfig
+
+    @property
+    def n_chains(self) -> int:
+        return self.log_prob.shape[0]
+
+    def flat(self) -> dict:
+        """Draws pooled over chains: ``{name: (n_chains * n_draws,)}``."""
+        return {n: v.reshape(-1) for n, v in self.draws.items()}
+
+    def quantiles(self, name: str, q=(0.05, 0.5, 0.95)) -> np.ndarray:
+        return np.quantile(self.draws[name], q)
+
+    @property
+    def r_hat_max(self) -> float:
+        return float(max(self.r_hat.values()))
+
+    @property
+    def ess_bulk_min(self) -> float:
+        return float(min(self.ess_bulk.values()))
+
+    @property
+    def ess_tail_min(self) -> float:
+        return float(min(self.ess_tail.values()))
+
+    def convergence_dict(self) -> dict:
+        """What JSON outputs carry about convergence."""
+        return {"converged": self.converged, "reason": self.reason, "r_hat_max": self.r_hat_max,
+                "ess_bulk_min": self.ess_bulk_min, "ess_tail_min": self.ess_tail_min,
+                "tau_max": float(max(self.tau.values())), "n_steps": self.n_steps, "n_chains": self.n_chains,
+                "policy": self.config.policy()}
 
     def config_dict(self) -> dict:
         return asdict(self.config)
 
 
-def _mode(like: TestLikelihood, fit: PointFit) -> np.ndarray:
-    """Posterior mode in z, started from a point fit (model-error scales from its residuals)."""
-    prior = like.prior
-    x = np.empty(prior.ndim)
-    x[[prior.names.index(n) for n in prior.model_names]] = fit.x
-    r = like._residual(like.predict(x[None]))[:, 0]  # (2, n_freq); the scales do not enter mu
-    # moment estimate of the discrepancy variance: mean squared residual minus the noise share
-    excess = np.mean(r**2 - like.sigma**2 / like.n, axis=1)
-    for q, name in enumerate(("sigma_mag", "sigma_phase")):
-        i = prior.names.index(name)
-        x[i] = np.clip(np.sqrt(max(excess[q], 0.0)), prior.lower[i] * 1.01, prior.upper[i] * 0.99)
+# --- the start -----------------------------------------------------------------------------
+
+def _cost(target):
+    def cost(zt):
+        zt = np.atleast_2d(zt.T).reshape(-1, target.prior.ndim)  # scipy passes (ndim, S) when vectorized
+        lp = target(zt)
+        return np.where(np.isfinite(lp), -lp, _BIG)
+    return cost
+
+
+def _start(target, start, rng, config) -> np.ndarray:
+    """The posterior mode in ``z``: differential evolution over the box (or ``start``), then L-BFGS-B."""
+    prior = target.prior
     lo, hi = prior.z_lower, prior.z_upper
-    z0 = np.clip(prior.to_z(x)[0], lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
-    res = minimize(lambda z: -like(z)[0], z0, method="L-BFGS-B", bounds=list(zip(lo, hi)),
-                   options={"maxiter": 500})
-    return res.x if np.isfinite(res.fun) and res.fun <= -like(z0)[0] else z0
+    cost = _cost(target)
+    if start is None:
+        res = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=max(1, math.ceil(config.de_population / prior.ndim)),
+                                     maxiter=config.de_generations, tol=1e-6, seed=rng, polish=False, vectorized=True,
+                                     updating="deferred", init="sobol")
+        z0 = res.x
+    else:
+        z0 = prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float)
+    width = hi - lo
+    z0 = np.clip(z0, lo + 1e-9 * width, hi - 1e-9 * width)
+    f0 = cost(z0[:, None])[0]
+    res = minimize(lambda z: cost(z[:, None])[0], z0, method="L-BFGS-B", bounds=list(zip(lo, hi)),
+                   options={"maxiter": 1000})
+    return res.x if np.isfinite(res.fun) and res.fun <= f0 else z0
 
 
-def _ball(like: TestLikelihood, z0, nwalkers, rng) -> np.ndarray:
-    """Walkers in a small ball around ``z0``, all with finite log-probability."""
-    prior = like.prior
+def _laplace(target, z0) -> np.ndarray | None:
+    """Covariance of the Laplace approximation at the mode ``z0`` (finite-difference Hessian of the
+    log-density in one batched call, a few steps inside the box where the mode is on a bound), or
+    None where it is not positive definite."""
+    prior = target.prior
+    d = prior.ndim
+    h = 1e-4 * (prior.z_upper - prior.z_lower)
+    z0 = np.clip(z0, prior.z_lower + 2.5 * h, prior.z_upper - 2.5 * h)
+    e = np.eye(d) * h
+    pts = [z0]
+    for i in range(d):
+        for j in range(i, d):
+            pts += [z0 + e[i] + e[j], z0 + e[i] - e[j], z0 - e[i] + e[j], z0 - e[i] - e[j]]
+    lp = target(np.array(pts))
+    if not np.all(np.isfinite(lp)):
+        return None
+    hess = np.empty((d, d))
+    k = 1
+    for i in range(d):
+        for j in range(i, d):
+            hess[i, j] = hess[j, i] = (lp[k] - lp[k + 1] - lp[k + 2] + lp[k + 3]) / (4 * h[i] * h[j])
+            k += 4
+    try:
+        cov = np.linalg.inv(-hess)
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return None
+    return cov
+
+
+def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
+    """Walkers around the mode, all inside the box with finite log-probability: drawn from the
+    Laplace approximation (no burn-in transient while the ensemble expands; its spread capped at a
+    tenth of the box, for directions the mode barely constrains) or, without one, from a small ball."""
+    prior = target.prior
     width = prior.z_upper - prior.z_lower
+    if cov is not None:
+        sd = np.sqrt(np.diag(cov))
+        cap = np.minimum(1.0, 0.1 * width / sd)
+        chol = np.linalg.cholesky(cov * np.outer(cap, cap))
     p0 = np.empty((nwalkers, prior.ndim))
-    filled = 0
-    scale = 1e-3
-    while filled < nwalkers:
-        cand = z0 + scale * width * rng.standard_normal((nwalkers, prior.ndim))
-        cand = np.clip(cand, prior.z_lower, prior.z_upper)
-        ok = cand[np.isfinite(like(cand))]
+    filled, scale = 0, 1.0 if cov is not None else 1e-3
+    for _ in range(60):
+        normal = rng.standard_normal((nwalkers, prior.ndim))
+        cand = z0 + scale * (normal @ chol.T if cov is not None else width * normal)
+        # reflect into the box once (a clip would pile walkers on a bound); what is still out is drawn again
+        cand = np.where(cand < prior.z_lower, 2 * prior.z_lower - cand, cand)
+        cand = np.where(cand > prior.z_upper, 2 * prior.z_upper - cand, cand)
+        inside = np.all((cand >= prior.z_lower) & (cand <= prior.z_upper), axis=1)
+        cand = cand[inside]
+        ok = cand[np.isfinite(target(cand))] if len(cand) else cand
         take = min(len(ok), nwalkers - filled)
         p0[filled:filled + take] = ok[:take]
         filled += take
-        scale *= 0.5
-    return p0
+        if filled == nwalkers:
+            return p0
+        scale *= 0.7
+    raise ValueError("no finite log-probability near the start: the target is -inf around its mode")
 
 
-class _Progress:
-    """A one-line progress display on stderr (rewritten in place on a terminal)."""
+# --- the ensembles -------------------------------------------------------------------------
 
-    def __init__(self, label: str, enabled: bool):
-        self.label, self.enabled = label, enabled
-        self.tty = enabled and sys.stderr.isatty()
-        self.last = 0.0
-
-    def __call__(self, text: str, final: bool = False):
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if self.tty:
-            sys.stderr.write(f"\r{self.label}: {text}\033[K" + ("\n" if final else ""))
-        elif final or now - self.last > 5:
-            sys.stderr.write(f"{self.label}: {text}\n")
-        else:
-            return
-        self.last = now
-        sys.stderr.flush()
+_MOVES = ((emcee.moves.DEMove, 0.8), (emcee.moves.DESnookerMove, 0.2))
 
 
-def _run_ensemble(job):
-    """One independently seeded ensemble, run to convergence; module-level so processes can run it."""
-    like, z0, ss, nwalkers, config, progress, e = job
-    prior = like.prior
-    ndim = prior.ndim
-    show = _Progress(progress or "", progress is not None)
-    rng = np.random.default_rng(ss)
-    p0 = _ball(like, z0, nwalkers, rng)
-    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
-    sampler = emcee.EnsembleSampler(nwalkers, ndim, like, vectorize=True, moves=moves)
-    state = emcee.State(p0, random_state=np.random.RandomState(rng.integers(2**32)).get_state())
-    n = 0
-    while True:
-        state = sampler.run_mcmc(state, config.check_every, progress=False)
-        n += config.check_every
-        burn = int(config.burn_fraction * n)
-        tau = sampler.get_autocorr_time(discard=burn, quiet=True, tol=0)
-        done = (n - burn) >= config.tau_factor * np.max(tau)
-        show(f"ensemble {e + 1}/{config.n_ensembles}, step {n}, tau {np.max(tau):.0f}, "
-             f"need {config.tau_factor * np.max(tau) / (1 - config.burn_fraction):.0f} steps")
-        if done or n >= config.max_steps:
-            break
-    thin = max(1, int(0.5 * np.min(tau)))
-    chain = sampler.get_chain(discard=burn, thin=thin)  # (steps, walkers, ndim)
-    lp = sampler.get_log_prob(discard=burn, thin=thin)
-    chain = np.swapaxes(chain, 0, 1).reshape(-1, ndim)  # walker-major
-    lp = lp.T.reshape(-1)
-    if len(chain) > config.max_draws:
-        keep = np.linspace(0, len(chain) - 1, config.max_draws).round().astype(int)
-        chain, lp = chain[keep], lp[keep]
-    return (prior.to_natural(chain), lp, float(np.mean(sampler.acceptance_fraction)), tau, n, burn, thin,
-            bool(done))
+def _advance(job):
+    """Run one ensemble ``steps`` further from ``state``; module-level so a process can run it."""
+    target, state, steps = job
+    nwalkers, ndim = state.coords.shape
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, target, vectorize=True, moves=[(m(), w) for m, w in _MOVES])
+    state = sampler.run_mcmc(state, steps, progress=False)
+    return sampler.get_chain(), sampler.get_log_prob(), state, sampler.backend.accepted.copy()
 
 
-def sample(like: TestLikelihood, *, seed: int, config: SamplerConfig = SamplerConfig(),
+def _tau(chain) -> np.ndarray:
+    """Integrated autocorrelation time of each parameter of one ensemble's chain ``(steps, walkers, ndim)``."""
+    return emcee.autocorr.integrated_time(chain, c=5, tol=0, quiet=True)
+
+
+def _draws(chains, lps, burn, thin):
+    """Kept, thinned draws of every ensemble: ``(n_chains, n_draws, ndim)`` walker-major, and log-probs."""
+    x = np.stack([np.swapaxes(c[burn::thin], 0, 1).reshape(-1, c.shape[-1]) for c in chains])
+    lp = np.stack([lp[burn::thin].T.reshape(-1) for lp in lps])
+    return x, lp
+
+
+def _assess(chains, lps, n, names, config):
+    """``(done, reason, tau, thin, draws, lp, diagnostics, need)`` after ``n`` steps of every ensemble."""
+    burn = int(config.burn_fraction * n)
+    kept = n - burn
+    taus = np.array([_tau(c[burn:]) for c in chains])  # (n_chains, ndim)
+    tau = taus.max(axis=0)
+    need = int(math.ceil(config.tau_factor * tau.max() / (1 - config.burn_fraction)))
+    nwalkers = chains[0].shape[1]
+    thin = max(1, int(math.ceil(tau.max() / 2)), int(math.ceil(kept * nwalkers / config.max_draws)))
+    x, lp = _draws(chains, lps, burn, thin)
+    diag = convergence({nm: x[:, :, i] for i, nm in enumerate(names)})
+    problems = []
+    if kept < config.tau_factor * tau.max():
+        worst = names[int(np.argmax(tau))]
+        problems.append(f"run {kept} steps < {config.tau_factor:g} x tau ({worst}: tau {tau.max():.0f})")
+    for nm, d in diag.items():
+        if not d["r_hat"] <= POLICY["rhat_max"]:
+            problems.append(f"R-hat of {nm} {d['r_hat']:.3f} > {POLICY['rhat_max']}")
+        ess = min(d["ess_bulk"], d["ess_tail"])
+        if not ess >= POLICY["ess_min"]:
+            problems.append(f"ESS of {nm} {ess:.0f} < {POLICY['ess_min']:.0f}")
+    return not problems, "; ".join(problems), dict(zip(names, map(float, tau))), burn, thin, x, lp, diag, need
+
+
+def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=None,
            progress: str | None = None) -> SampleResult:
-    """Sample the posterior of one likelihood.
+    """Sample the posterior of ``target`` under sbcal's convergence policy.
 
     Parameters
     ----------
-    like : TestLikelihood
-        The log-posterior (``like(z)`` in the prior's sampled coordinates).
-    seed : int
-        Seeds the point fit and every ensemble (through ``numpy.random.SeedSequence``): the same
-        seed gives the same draws.
+    target : object
+        ``prior``, vectorised ``__call__(z)`` and optionally ``pointwise_log_likelihood(params)``
+        (module docstring).
+    seed : int or numpy.random.SeedSequence
+        Seeds the start and every ensemble: the same seed gives the same draws, whatever
+        ``config.workers``.
     config : SamplerConfig
+    start : dict of str -> float, or ndarray of shape (ndim,), optional
+        Where to polish the mode from (natural values by name, or sampled coordinates); default a
+        differential-evolution search over the prior box.
     progress : str, optional
-        A label; when given, progress is shown on stderr.
+        A label: a progress bar on stderr (when it is a terminal).
 
     Returns
     -------
     SampleResult
     """
     t0 = time.perf_counter()
-    prior = like.prior
-    ndim = prior.ndim
-    nwalkers = max(config.nwalkers, 2 * ndim + 2)
+    prior = target.prior
+    names = tuple(prior.names)
+    nwalkers = max(config.nwalkers, 2 * prior.ndim + 2)
     nwalkers += nwalkers % 2
-    show = _Progress(progress or "", progress is not None)
-    seqs = np.random.SeedSequence(seed).spawn(config.n_ensembles + 1)  # the same draws for any `workers`
-    show("point fits (differential evolution)")
-    ga_rng = np.random.default_rng(seqs[0])
-    fit = fit_ga(like, seed=ga_rng, population=config.ga_population, generations=config.ga_generations)
-    start = fit_ga(like, seed=ga_rng, population=config.ga_population, generations=config.ga_generations,
-                   cost="likelihood")
-    z0 = _mode(like, start)
-    jobs = [(like, z0, ss, nwalkers, config, progress, e) for e, ss in enumerate(seqs[1:])]
-    if config.workers > 1 and config.n_ensembles > 1:
-        # the ensembles are independent: one process each, up to `workers` at a time
-        with ProcessPoolExecutor(max_workers=min(config.workers, config.n_ensembles)) as pool:
-            runs = list(pool.map(_run_ensemble, jobs))
-    else:
-        runs = [_run_ensemble(job) for job in jobs]
-    xs, lps, acc, taus, steps, burns, thins, done = (list(v) for v in zip(*runs))
-    converged = all(done)
-    n_draws = min(len(x) for x in xs)
-    result = SampleResult(
-        names=prior.names, x=np.stack([x[:n_draws] for x in xs]), log_prob=np.stack([lp[:n_draws] for lp in lps]),
-        acceptance=np.array(acc), tau=np.array(taus), n_steps=np.array(steps), burn=np.array(burns),
-        thin=np.array(thins), converged=converged, init=fit, wall_s=time.perf_counter() - t0, config=config,
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    seqs = root.spawn(config.n_ensembles + 1)
+    with progress_bar(progress, total=None, unit="step") as bar:
+        bar.set_postfix_str("finding the mode")
+        z0 = _start(target, start, np.random.default_rng(seqs[0]), config)
+        cov = _laplace(target, z0)
+        states = []
+        for ss in seqs[1:]:
+            rng = np.random.default_rng(ss)
+            p0 = _initial(target, z0, cov, nwalkers, rng)
+            states.append(emcee.State(p0, random_state=np.random.RandomState(rng.integers(2**32)).get_state()))
+        chains, lps = [[] for _ in states], [[] for _ in states]
+        accepted = np.zeros((len(states), nwalkers))
+        n, block = 0, min(config.first_steps, config.max_steps)
+        workers = min(config.workers, config.n_ensembles)
+        pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
+        try:
+            while True:
+                jobs = [(target, s, block) for s in states]
+                for e, (c, lp, s, acc) in enumerate(pool.map(_advance, jobs) if pool else map(_advance, jobs)):
+                    chains[e].append(c)
+                    lps[e].append(lp)
+                    states[e] = s
+                    accepted[e] += acc
+                n += block
+                chain_arr = [np.concatenate(c) for c in chains]
+                lp_arr = [np.concatenate(v) for v in lps]
+                done, reason, tau, burn, thin, x, lp, diag, need = _assess(chain_arr, lp_arr, n, names, config)
+                bar.total = max(need, n)
+                bar.update(block)
+                bar.set_postfix_str(f"tau {max(tau.values()):.0f}")
+                if done or n >= config.max_steps:
+                    break
+                # the next round: to the length the autocorrelation asks for (5 % beyond, as the estimate
+                # grows with the run), or half again when only R-hat or ESS are short
+                more = int(math.ceil(1.05 * need)) - n if need > n else n // 2
+                block = min(max(more, n // 10, 50), config.max_steps - n)
+        finally:
+            if pool:
+                pool.shutdown()
+    natural = prior.to_natural(x.reshape(-1, prior.ndim))
+    params = {nm: natural[:, i] for i, nm in enumerate(names)}
+    loglik = None
+    if hasattr(target, "pointwise_log_likelihood"):
+        chunk = 2000
+        parts = [target.pointwise_log_likelihood({k: v[i:i + chunk] for k, v in params.items()})
+                 for i in range(0, natural.shape[0], chunk)]
+        loglik = np.concatenate(parts).reshape(x.shape[0], x.shape[1], -1)
+    return SampleResult(
+        names=names, draws={nm: v.reshape(x.shape[:2]) for nm, v in params.items()}, log_prob=lp, log_likelihood=loglik,
+        tau=tau, acceptance=accepted.mean(axis=1) / n, r_hat={k: v["r_hat"] for k, v in diag.items()},
+        ess_bulk={k: v["ess_bulk"] for k, v in diag.items()}, ess_tail={k: v["ess_tail"] for k, v in diag.items()},
+        n_steps=n, burn=burn, thin=thin, converged=bool(done),
+        reason="" if done else f"stopped at the {config.max_steps}-step cap: {reason}",
+        start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
+        wall_s=time.perf_counter() - t0, config=config,
     )
-    show(f"done in {result.wall_s:.1f} s, acceptance {result.acceptance.mean():.2f}", final=True)
-    return result

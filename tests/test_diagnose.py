@@ -11,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sbcal.bench import load_bench, noise_model, remove_outlier_runs, write_bench
+from sbcal.bench import load_bench, remove_outlier_runs, write_bench
+from sbcal.calibrate import likelihood_for
 from sbcal.cli import main
 from sbcal.damper import resolve_damper
 from sbcal.diagnose import DiagnoseConfig, _bands, diagnose
 from sbcal.extensions import EXTENSIONS, SlipModel, model_for
 from sbcal.fem import STANDARD_GRID_HZ, dynamic_stiffness
-from sbcal.likelihood import JointLikelihood, TestLikelihood
+from sbcal.likelihood import JointLikelihood
 from sbcal.priors import extension_prior, load_prior
 from sbcal.virtual_bench import BenchConfig, response
 
@@ -27,7 +28,7 @@ from diagnose_matrix import run_case  # noqa: E402
 F = STANDARD_GRID_HZ
 BASE = dict(EJ=np.array([9.0, 14.0]), beta=np.array([0.3, 0.2]), a1=np.array([0.028, 0.029]),
             a2=np.array([-0.0154, -0.015]))
-FAST = DiagnoseConfig(draws=200, max_steps=1500, joint_max_steps=2000)
+FAST = DiagnoseConfig(draws=150, joint_max_steps=2000)
 QUICK_TESTS = ("0.2-0.2", "1-1", "2-2")
 
 
@@ -97,10 +98,7 @@ def test_strand_slip_model_limits_and_fixed_point(damper):
 
 
 def _like(damper, bench, test, prior, model=None):
-    data = remove_outlier_runs(bench.test(damper.name, test)).data
-    nm = noise_model(data)
-    return TestLikelihood(damper, prior, data.freq_hz, data.magnitude, data.phase_deg, nm.sigma_logmag,
-                          nm.sigma_phase, model=model, amplitude_mm_pp=data.amplitude_mm_pp)
+    return likelihood_for(damper, remove_outlier_runs(bench.test(damper.name, test)).data, prior, model=model)
 
 
 @pytest.fixture(scope="module")
@@ -113,24 +111,16 @@ def small_bench(tmp_path_factory, damper):
     return load_bench(path)
 
 
-def test_noise_only_likelihood_is_the_t_and_normal_densities(damper, small_bench):
-    from scipy import stats
-
-    like = _like(damper, small_bench, "1-1", extension_prior("baseline", damper))
-    x = np.array([[0.25, damper.a1, damper.a2, 9.0]])
-    mu = like.predict(x)
-    r = like._residual(mu)[:, 0]
-    scale = np.sqrt(like.sigma ** 2 / like.n)
-    expect = stats.t.logpdf(r, like.nu, scale=scale).sum()
-    assert like.log_likelihood(x)[0] == pytest.approx(expect, rel=1e-10)
-    # without a shared discrepancy the runs are independent given theta: log p(y_r | y_-r) = log p(y_r)
-    dev = like.y - mu[:, 0][:, None, :]
-    dev[1] = np.remainder(dev[1] + np.pi, 2 * np.pi) - np.pi
-    per_run = stats.norm.logpdf(dev, scale=like.sigma[:, None, :]).sum(axis=(0, 2))
-    np.testing.assert_allclose(like.pointwise_log_likelihood(x)[0], per_run, rtol=1e-10)
-    # and the default prior (with model-error scales) still gives the discrepancy likelihood
-    with_error = _like(damper, small_bench, "1-1", load_prior("theta1", damper))
-    assert with_error._ierr is not None and like._ierr is None
+def test_noise_only_likelihood_has_no_discrepancy(damper, small_bench):
+    """The diagnosis's likelihood: the multivariate t of the runs with s = 0, i.e. the default
+    likelihood with both discrepancy scales at zero; the default prior keeps them."""
+    base = _like(damper, small_bench, "1-1", extension_prior("baseline", damper))
+    full = _like(damper, small_bench, "1-1", load_prior("theta1", damper))
+    p = {"EJ": np.array([9.0]), "beta": np.array([0.25]), "a1": np.array([damper.a1]), "a2": np.array([damper.a2])}
+    zero = dict(p, sigma_mag=np.array([0.0]), sigma_phase=np.array([0.0]))
+    assert base.log_likelihood(p)[0] == pytest.approx(full.log_likelihood(zero)[0], rel=1e-12)
+    np.testing.assert_allclose(base.pointwise_log_likelihood(p), full.pointwise_log_likelihood(zero), rtol=1e-12)
+    assert "sigma_mag" not in base.prior.names and "sigma_mag" in full.prior.names
 
 
 def test_joint_likelihood_of_one_test_is_the_test_likelihood(damper, small_bench):
@@ -140,7 +130,7 @@ def test_joint_likelihood_of_one_test_is_the_test_likelihood(damper, small_bench
     joint = JointLikelihood([single], prior, SlipModel(amp))
     z = prior.sample(np.random.default_rng(0), 6)
     np.testing.assert_allclose(joint(z), single(z), rtol=1e-12)
-    x = prior.to_natural(z)
+    x = prior.params(z)
     np.testing.assert_allclose(joint.pointwise_log_likelihood(x), single.pointwise_log_likelihood(x), rtol=1e-12)
 
 
