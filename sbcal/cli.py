@@ -121,11 +121,11 @@ def _bench_for(args):
     from .bench import default_bench_path, load_bench
 
     if args.bench:
-        return load_bench(args.bench)
+        return load_bench(args.bench, sheet=getattr(args, "sheet", None))
     path = default_bench_path()
     if not path.is_file():
         raise InputError(f"no bundled bench data ({path} is missing); pass --bench PATH")
-    return load_bench(path)
+    return load_bench(path, sheet=getattr(args, "sheet", None))
 
 
 def _cmd_sample(args) -> int:
@@ -169,7 +169,8 @@ def _add_data(sub):
                        description="Validate a bench CSV and report per damper and test: runs, frequency grid, "
                                    "amplitudes, the median coefficient of variation (thesis 2.5) at <= 15 Hz and "
                                    "> 15 Hz before -> after removing outlier runs (Z-score on whole curves, 2.6).")
-    p.add_argument("--bench", metavar="PATH", help="bench CSV or CSV.gz (default: the bundled data)")
+    p.add_argument("--bench", metavar="PATH", help="bench .csv, .csv.gz, .xlsx or .parquet (default: the bundled data)")
+    p.add_argument("--sheet", metavar="NAME", help="read only this sheet of an .xlsx workbook (default: every sheet)")
     p.add_argument("--json", metavar="OUT", help="also write the summary as JSON")
     p.add_argument("--z-threshold", type=float, default=None, metavar="Z",
                    help="outlier run-score threshold (default 3)")
@@ -184,7 +185,7 @@ def _fmt_cv(cv: dict, name: str) -> str:
 
 def _cmd_data(args) -> int:
     from ._io import write_json
-    from .bench import DEFAULT_Z_THRESHOLD, bench_summary
+    from .bench import DEFAULT_Z_THRESHOLD, bench_summary, summary_notes
 
     z = DEFAULT_Z_THRESHOLD if args.z_threshold is None else args.z_threshold
     bench = _bench_for(args)
@@ -204,6 +205,8 @@ def _cmd_data(args) -> int:
             grid = f"{t['frequency_min_hz']:g}-{t['frequency_max_hz']:g}"
             print(f"  {label:<12}{t['runs']:>5}  {removed:<12}{t['n_frequencies']:>5}  {grid:<11}{amps:<14}"
                   f"{_fmt_cv(t['cv_median_pct'], 'magnitude'):<22}{_fmt_cv(t['cv_median_pct'], 'phase')}")
+            for note in summary_notes(t):
+                print(f"    ^ {note}")
     if args.json:
         print(f"wrote {args.json}")
     return 0
