@@ -51,7 +51,7 @@ __all__ = [
 ]
 
 X_B = 0.089
-"""Distance from the last point of contact at which Y_b is measured [m] (IEEE 1966 / EPRI)."""
+"""Distance from the last point of contact at which Y_b is taken [m] (pallas-dohl damage.py: xb=0.089)."""
 
 STATUS = ("ok", "extrapolated", "below_range", "no_solution")
 """Status codes of a balance: 0 root inside the wind curve's validity range; 1 root found outside
@@ -401,20 +401,15 @@ class _Balance:
 
 
 def _scatter(fun, shape):
-    """Wrap ``fun`` (whole (S, F) arrays in, (S, F) out; the impedance protocol calls for whole
-    arrays) for scipy's elementwise solvers, which pass only the elements still active (flat index
-    ``idx``), sometimes the same element twice: evaluated in rounds of distinct indices."""
+    """Wrap ``fun`` (whole (S, F) arrays in and out: the impedance protocol evaluates whole arrays)
+    for scipy's elementwise root finder, which passes only the elements still active (their flat
+    indices ``idx``): they are scattered into a full state array, the rest keep their last values."""
     state = np.zeros(shape)
 
     def f(v, idx):
-        flat, out = idx.astype(np.intp), np.empty(v.shape)
-        todo = np.arange(flat.size)
-        while todo.size:
-            first = todo[np.unique(flat[todo], return_index=True)[1]]
-            state.flat[flat[first]] = v[first]
-            out[first] = fun(state).ravel()[flat[first]]
-            todo = np.setdiff1d(todo, first, assume_unique=True)
-        return out
+        flat = idx.astype(np.intp)
+        state.flat[flat] = v
+        return fun(state).ravel()[flat]
 
     return f
 
