@@ -1,0 +1,61 @@
+"""Span energy balance: wall time for one conductor, one linear damper with a posterior, the band.
+
+Usage: python benchmarks/span.py [--draws 400] [--freq 60] [--positions 40] [--repeat 5]
+
+Drake (bundled), damper1 through the 6-DOF model with ``--draws`` posterior-like draws of EJ and
+beta, ``--freq`` Strouhal frequencies for 1-7 m/s, 90 % bands. Prints the best wall time of
+:func:`sbcal.span.energy_balance` with the damper beside two baselines measured in the same run:
+the same balance without a damper, and one evaluation of the damper's dynamic stiffness over all
+draws and frequencies; then one placement sweep (:func:`sbcal.span.optimise_position`).
+Target (issue): under a minute on 2 cores for the damper case.
+"""
+
+import argparse
+import time
+
+import numpy as np
+
+from sbcal.conductor import resolve_conductor
+from sbcal.damper import resolve_damper
+from sbcal.span import FemImpedance, energy_balance, optimise_position, strouhal_band
+
+from _timing import best_time  # benchmarks/ is on sys.path when run as a script
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--draws", type=int, default=400)
+    ap.add_argument("--freq", type=int, default=60)
+    ap.add_argument("--positions", type=int, default=40)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+
+    c = resolve_conductor("drake")
+    z = np.random.default_rng(0).standard_normal((2, args.draws))
+    imp = FemImpedance(resolve_damper("damper1"), dict(EJ=20.0 * np.exp(0.2 * z[0]), beta=0.15 * np.exp(0.2 * z[1])))
+    freq = strouhal_band(c, (1.0, 7.0), args.freq)[0]
+    amp = np.full((1, freq.size), 1e-3)
+
+    t_k = best_time(lambda: imp(freq, amp), args.repeat)
+    t_bare = best_time(lambda: energy_balance(c, n_freq=args.freq), args.repeat)
+    t_damp = best_time(lambda: energy_balance(c, imp, 1.1, n_freq=args.freq), args.repeat)
+    r = energy_balance(c, imp, 1.1, n_freq=args.freq)
+    t0 = time.perf_counter()
+    p = optimise_position(c, imp, np.linspace(0.2, 2.8, args.positions), n_freq=args.freq)
+    t_place = time.perf_counter() - t0
+
+    n = args.draws * args.freq
+    print(f"problem      : {c.name}, damper1 x {args.draws} draws, {args.freq} frequencies "
+          f"({freq[0]:.1f}-{freq[-1]:.1f} Hz) = {n} balances")
+    print(f"K* once      : {t_k * 1e3:8.2f} ms  (6-DOF dynamic stiffness, all draws and frequencies)")
+    print(f"bare span    : {t_bare * 1e3:8.2f} ms  (baseline: {args.freq} balances, no damper)")
+    print(f"with damper  : {t_damp * 1e3:8.2f} ms  = {t_damp / t_bare:.1f}x the bare span, "
+          f"{t_damp / t_k:.0f}x one K* evaluation; {n / t_damp:.3g} balances/s")
+    print(f"placement    : {t_place:8.2f} s   ({args.positions} positions; best {p.best_position_m:.2f} m, "
+          f"margin q10 {p.best_margin:.2f})")
+    print(f"result       : worst-case margin median {np.median(r.margin):.2f} (bare {r.margin_bare:.2f}); "
+          f"target < 60 s for the damper case")
+
+
+if __name__ == "__main__":
+    main()
