@@ -23,7 +23,9 @@ with A). A per-test posterior that did not converge still enters, and the map sa
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -34,8 +36,8 @@ from .runs import posterior_draws
 from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
 
-__all__ = ["TestPoint", "LawFit", "fit_law", "amplitude_map", "map_dampers", "plot_map", "points_from_table",
-           "points_from_runs", "joint_powerlaw", "joint_from_runs"]
+__all__ = ["TestPoint", "LawFit", "fit_law", "amplitude_map", "map_from_store", "stored_maps", "law_curve", "plot_map",
+           "points_from_table", "points_from_runs", "joint_powerlaw", "joint_from_runs"]
 
 LEVEL = 0.90  # interval level of every reported interval
 
@@ -257,38 +259,88 @@ def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float 
     return doc, {"powerlaw": pl, "saturating": sat}
 
 
-def map_dampers(runs_dir, paramset: str = "theta1", *, seed: int = 0, include_oiled: bool = False) -> dict:
-    """:func:`amplitude_map` for every damper in a run store with tests at 3+ amplitudes.
+def _summaries_digest(runs_dir, damper: str, paramset: str) -> dict:
+    """sha256 of every finished run's summary.json of a damper: what a map is made from."""
+    import hashlib
 
-    Mixed-amplitude tests (``2-1``) never enter the fit (they have no single amplitude); oiled
-    tests are kept out unless ``include_oiled``. Both are still listed under ``"excluded"``. The
-    saturating law's ceiling is the damper's ``ej_static`` as its stored runs describe it.
+    root = Path(runs_dir) / damper
+    return {p.parent.parent.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.glob(f"*/{paramset}/summary.json"))}
+
+
+def map_from_store(runs_dir, damper: str, paramset: str = "theta1", *, seed: int = 0, include_oiled: bool = False,
+                   reuse: bool = True, config: SamplerConfig = SamplerConfig()) -> tuple[dict | None, str]:
+    """The amplitude map of one damper from its stored posteriors, stored as ``map.json`` + ``map.nc``.
+
+    The map is redone only when the posteriors it rests on (their summaries' digests), its settings,
+    the seed or the sbcal version changed. Mixed-amplitude tests (``2-1``) never enter the fit (they
+    have no single amplitude); oiled tests are kept out unless ``include_oiled``; both are listed
+    under ``"excluded"``. The saturating law's ceiling is the damper's ``ej_static`` as its stored
+    runs describe it.
+
+    Returns
+    -------
+    (doc, status)
+        The ``map.json`` document (None when the damper has no tests at 3 or more amplitudes) and
+        ``"reused"`` or ``"redone (...)"``.
     """
-    from pathlib import Path
+    from . import __version__
+    from ._io import write_json
+    from .runs import write_map
+
+    root = Path(runs_dir) / damper
+    inputs = {"posteriors": _summaries_digest(runs_dir, damper, paramset), "paramset": paramset,
+              "settings": {"include_oiled": include_oiled}, "seed": seed, "sbcal": __version__}
+    path = root / "map.json"
+    stored = json.loads(path.read_text()) if path.is_file() else None
+    why = [k for k in inputs if not stored or stored.get("inputs", {}).get(k) != inputs[k]]
+    if reuse and stored is not None and not why:
+        return stored, "reused"
+    keep = (lambda t: True) if include_oiled else (lambda t: "oiled" not in t)
+    records = list(posterior_draws(runs_dir, damper, paramset, ("EJ", "beta")))  # every run read once
+    ej = _points(records, damper, "EJ", keep)
+    if len({p.amplitude for p in ej}) < 3:
+        return None, "skipped (tests at fewer than 3 amplitudes)"
+    beta = _points(records, damper, "beta", keep)
+    statics = {r.summary.get("config", {}).get("damper_values", {}).get("ej_static") for r in records}
+    ceiling = statics.pop() if len(statics) == 1 else None  # runs of one damper description
+    doc, fits = amplitude_map(ej, beta, seed=seed, ej_static=ceiling, config=config)
+    every = _points(records, damper, "EJ", mixed=True)
+    used = {p.test for p in ej}
+    doc["excluded"] = [{"test": p.test, "amplitude_mm_pp": p.amplitude, "ej_nm2": [p.median, p.lo, p.hi]}
+                       for p in every if p.test not in used]
+    doc["damper"] = damper
+    doc["inputs"] = inputs
+    write_map(root, {law: fit.result for law, fit in fits.items()})
+    write_json(path, doc, indent=1)
+    reason = ", ".join("per-test posteriors changed" if k == "posteriors" else f"{k} changed" for k in why)
+    return doc, f"redone ({reason or 'asked'})" if stored is not None else "redone (not stored yet)"
+
+
+def stored_maps(runs_dir) -> dict:
+    """``{damper: map.json document}`` of every stored map in a run store, with its law draws under
+    ``"draws"`` (``{law: {parameter: ndarray}}``, from ``map.nc``) for plots."""
+    from .runs import read_map
 
     root = Path(runs_dir)
-    docs = {}
+    out = {}
     for d in sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []:
-        keep = (lambda t: True) if include_oiled else (lambda t: "oiled" not in t)
-        records = list(posterior_draws(root, d, paramset, ("EJ", "beta")))  # every run read once
-        ej = _points(records, d, "EJ", keep)
-        if len({p.amplitude for p in ej}) < 3:
-            continue
-        beta = _points(records, d, "beta", keep)
-        statics = {r.summary.get("config", {}).get("damper_values", {}).get("ej_static") for r in records}
-        ceiling = statics.pop() if len(statics) == 1 else None  # runs of one damper description
-        doc, fits = amplitude_map(ej, beta, seed=seed, ej_static=ceiling)
-        every = _points(records, d, "EJ", mixed=True)
-        used = {p.test for p in ej}
-        doc["excluded"] = [{"test": p.test, "amplitude_mm_pp": p.amplitude, "ej_nm2": [p.median, p.lo, p.hi]}
-                           for p in every if p.test not in used]
-        doc["_fits"] = fits
-        docs[d] = doc
-    return docs
+        path = root / d / "map.json"
+        if path.is_file():
+            doc = json.loads(path.read_text())
+            doc["draws"] = read_map(root / d)
+            out[d] = doc
+    return out
+
+
+def law_curve(law: str, draws: dict, a) -> np.ndarray:
+    """Draws of a law at amplitudes ``a`` [mm p-p]: shape (n_draws, len(a))."""
+    return np.exp(_law_mean(law, np.asarray(a, float)[None, :], draws))
 
 
 def plot_map(docs: dict, path) -> None:
-    """EJ and beta versus amplitude for every damper, with the power law's 90 % band; a PNG."""
+    """EJ and beta versus amplitude for every damper (maps as :func:`stored_maps` gives them), with the
+    power law's 90 % band; a PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -298,10 +350,11 @@ def plot_map(docs: dict, path) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     grid = np.geomspace(0.08, 2.5, 100)
-    for (name, doc), color in zip(docs.items(), ("C0", "C1", "C2", "C3")):
-        fit = doc.get("_fits", {}).get("powerlaw")
-        if fit is not None:
-            lo, mid, hi = np.quantile(fit.curve(grid), [0.05, 0.5, 0.95], axis=0)
+    for i, (name, doc) in enumerate(docs.items()):
+        color = f"C{i % 10}"  # every damper of the store, however many
+        draws = doc.get("draws", {}).get("powerlaw")
+        if draws:
+            lo, mid, hi = np.quantile(law_curve("powerlaw", draws, grid), [0.05, 0.5, 0.95], axis=0)
             axes[0].fill_between(grid, lo, hi, color=color, alpha=0.2)
             axes[0].plot(grid, mid, color=color, lw=1, label=f"{name}: k A^-n, 90 % band")
         t = doc["tests"]

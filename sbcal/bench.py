@@ -1596,3 +1596,14 @@ def write_bench(frame: pd.DataFrame, path) -> None:
     """Write bench rows as CSV, atomically (no partial file on interruption)."""
     with atomic_path(path, ".csv") as tmp:
         frame.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
+
+
+def rows_digest(bench: BenchData, damper: str, test: str | None = None) -> str:
+    """sha256 of a damper's (or one test's) rows: independent of row order and of the file's format
+    (a CSV, a workbook and a Parquet file of the same rows agree). What a stored result was made from."""
+    import hashlib
+
+    f = bench.frame
+    sel = f[(f["damper"] == damper) & ((f["test"] == test) if test is not None else True)]
+    sel = sel[list(BENCH_COLUMNS)].sort_values(["test", "run", "frequency_hz"], kind="mergesort")
+    return hashlib.sha256(sel.to_csv(index=False, float_format="%.17g").encode()).hexdigest()

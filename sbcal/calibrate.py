@@ -1,36 +1,27 @@
 """One calibration, end to end: bench data -> cleaned runs -> noise model -> likelihood ->
-sampler -> stored run. The CLI's ``sample`` and ``run`` commands are thin wrappers over this.
+sampler -> stored run. :mod:`sbcal.pipeline` runs it over tests and dampers (and says when a stored
+run is still fresh).
 """
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, replace
-from pathlib import Path
+from dataclasses import asdict
 
 import numpy as np
 
-from .bench import DEFAULT_Z_THRESHOLD, load_bench, noise_model, remove_outlier_runs
+from .bench import DEFAULT_Z_THRESHOLD, noise_model, remove_outlier_runs
 from .damper import Damper
 from .ga import fit_ga
 from .likelihood import TestLikelihood
 from .priors import load_prior
-from .runs import read_summary, run_dir, summarize, to_inference_data, versions, write_run
+from .runs import run_dir, summarize, to_inference_data, versions, write_run
 from ._io import write_json
 from .sampler import SamplerConfig, sample
 
-__all__ = ["likelihood_for", "test_likelihood", "calibrate_test", "calibrate_tests", "point_fit_test", "is_up_to_date"]
+__all__ = ["likelihood_for", "test_likelihood", "calibrate_test", "point_fit_test"]
 
 POINT_FIT_POPULATION, POINT_FIT_GENERATIONS = 60, 200
 """The thesis-cost point fit stored beside every posterior as its baseline (``ga`` in summary.json)."""
-
-
-def _fingerprint(bench) -> str:
-    """sha256 of the bench file: a stored run is up to date only for the same data."""
-    import hashlib
-
-    return hashlib.sha256(Path(bench.source).read_bytes()).hexdigest()
 
 
 def likelihood_for(damper: Damper, data, prior, *, model=None, fixed=None) -> TestLikelihood:
@@ -65,7 +56,7 @@ def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", 
 
 def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
                    config: SamplerConfig = SamplerConfig(), prior_path=None, z_threshold=None,
-                   progress: bool = True, command: str = "") -> dict:
+                   progress: bool = True, command: str = "", inputs: dict | None = None) -> dict:
     """Sample one test's posterior and store it under ``out``; returns the summary.
 
     Parameters
@@ -87,6 +78,9 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     progress : bool
     command : str
         The command line, kept for provenance.
+    inputs : dict, optional
+        Digests of what the run is made from (:func:`sbcal.pipeline.sample_inputs`), stored in
+        ``summary.json`` so that a later run can tell whether it is still fresh.
     """
     like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path, z_threshold)
     label = f"{damper.name}/{test}/{paramset}"
@@ -95,11 +89,13 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
                    generations=POINT_FIT_GENERATIONS)
     result = sample(like, seed=seqs[1], config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
-            "bench": bench.source, "bench_sha256": _fingerprint(bench), "prior": like.prior.as_dict(), "sampler": asdict(config),
+            "bench": bench.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
             "command": command, "damper_values": asdict(damper)}
     idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
                               seed=seed, meta=meta)
     summary = summarize(idata, result, point_fit=point.as_dict())
+    if inputs is not None:
+        summary["inputs"] = inputs
     write_run(idata, summary, run_dir(out, damper.name, test, paramset))
     return summary
 
@@ -114,39 +110,3 @@ def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     path = run_dir(out, damper.name, test, paramset) / "ga.json"
     write_json(path, doc, indent=2, sort_keys=True)
     return doc
-
-
-def _work(job):
-    damper, bench_path, test, kwargs = job
-    return test, calibrate_test(damper, load_bench(bench_path), test, **kwargs)
-
-
-def _init_worker():
-    os.environ["OMP_NUM_THREADS"] = "1"
-
-
-def calibrate_tests(damper: Damper, bench, tests, *, workers: int = 1, **kwargs) -> dict:
-    """:func:`calibrate_test` for several tests, in ``workers`` processes; ``{test: summary}``."""
-    if workers <= 1 or len(tests) <= 1:
-        return {t: calibrate_test(damper, bench, t, **kwargs) for t in tests}
-    # tests in parallel: each sampler then runs its ensembles in its own process
-    kwargs["config"] = replace(kwargs.get("config", SamplerConfig()), workers=1)
-    jobs = [(damper, bench.source, t, kwargs) for t in tests]
-    with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
-        return dict(pool.map(_work, jobs))
-
-
-def is_up_to_date(out, damper: Damper, bench, test: str, paramset: str, seed: int,
-                  config: SamplerConfig = SamplerConfig()) -> bool:
-    """True when a finished run of this test exists for the same data, damper, seed and settings."""
-    s = read_summary(run_dir(out, damper.name, test, paramset))
-    if s is None:
-        return False
-    cfg = s.get("config", {})
-
-    def settings(d):  # the number of processes does not change the draws
-        return {k: v for k, v in (d or {}).items() if k != "workers"}
-
-    return (s.get("seed") == seed and cfg.get("bench_sha256") == _fingerprint(bench)
-            and settings(cfg.get("sampler")) == settings(asdict(config))
-            and cfg.get("damper_values") == asdict(damper))

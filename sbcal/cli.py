@@ -96,6 +96,20 @@ def _cmd_simulate(args) -> int:
 
 # --- sample ------------------------------------------------------------------------------------
 
+def _bench_options(p, what="bench file"):
+    p.add_argument("--bench", metavar="PATH", help=f"{what}: .csv, .csv.gz, .xlsx or .parquet (default: the bundled data)")
+    p.add_argument("--sheet", metavar="NAME", help="read only this sheet of an .xlsx workbook (default: every sheet)")
+
+
+def _scale_options(p, workers_help="jobs in parallel local processes"):
+    p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
+                   help=f"{workers_help} (default: 2 or the cores there are)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="send the jobs to a running Dask distributed cluster (e.g. tcp://host:8786; "
+                        "pip install \"sbcal[dask]\")")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
 def _add_sample(sub):
     p = sub.add_parser("sample", help="posterior of EJ and beta per test (emcee), stored as ArviZ netCDF",
                        description="Sample the posterior of one test (--test) or every test (--all) of a "
@@ -104,15 +118,15 @@ def _add_sample(sub):
     which.add_argument("--test", action="append", metavar="LABEL", help="test label (repeatable)")
     which.add_argument("--all", action="store_true", help="every test of the damper in the bench file")
     p.add_argument("--damper", default="damper1", help="bundled damper name or TOML path (default damper1)")
-    p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
+    _bench_options(p)
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
-    p.add_argument("--prior", metavar="PATH", help="prior file (default: the bundled priors/default.toml)")
+    p.add_argument("--priors", "--prior", dest="priors", metavar="PATH",
+                   help="prior file (default: the bundled priors/default.toml)")
     p.add_argument("--method", choices=("bayes", "ga"), default="bayes",
                    help="bayes: emcee posterior (default); ga: the thesis's point fit only (baseline)")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="tests in parallel processes")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--out", default="runs", metavar="DIR", help="run store (default runs/)")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+    _scale_options(p, "tests in parallel processes")
     return p
 
 
@@ -128,36 +142,53 @@ def _bench_for(args):
     return load_bench(path, sheet=getattr(args, "sheet", None))
 
 
+def _settings(args, **extra):
+    from .pipeline import Settings
+
+    if getattr(args, "workers", 1) < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    if args.priors:
+        from .pipeline import file_digest
+
+        file_digest(args.priors)  # fail early on a missing prior file
+    return Settings(paramset=getattr(args, "params", "theta1"), seed=args.seed, priors=args.priors,
+                    workers=getattr(args, "workers", 1), **extra)
+
+
+def _print_summary(name, t, paramset, s):
+    p = s["parameters"]
+    flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
+    print(f"{name} {t} {paramset}: EJ {p['EJ']['median']:.3g} [{p['EJ']['q05']:.3g}, "
+          f"{p['EJ']['q95']:.3g}] N m^2, " + ", ".join(
+              f"{n} {p[n]['median']:.3g} [{p[n]['q05']:.3g}, {p[n]['q95']:.3g}]"
+              for n in p if n.startswith("beta")) + f", R-hat max {s['r_hat_max']:.3f}, "
+          f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.1f} s{flag}")
+
+
 def _cmd_sample(args) -> int:
-    from .calibrate import calibrate_tests, point_fit_test
+    from .calibrate import point_fit_test
     from .damper import resolve_damper
+    from .pipeline import executor_for, sample_tests
 
     damper = resolve_damper(args.damper)
     bench = _bench_for(args)
     tests = bench.tests(damper.name) if args.all else args.test
     for t in tests:
         bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
-    if args.workers < 1:
-        raise InputError(f"--workers {args.workers}: must be >= 1")
+    settings = _settings(args)
     if args.method == "ga":
         for t in tests:
             doc = point_fit_test(damper, bench, t, paramset=args.params, seed=args.seed, out=args.out,
-                                 prior_path=args.prior)
+                                 prior_path=args.priors)
             vals = ", ".join(f"{k}={v:.4g}" for k, v in doc["parameters"].items())
             print(f"{damper.name} {t} {args.params} (GA point fit): {vals}; cost {doc['cost']:.4g}, "
                   f"{doc['generations']} generations, {doc['wall_s']:.1f} s")
         return 0
-    summaries = calibrate_tests(damper, bench, tests, workers=args.workers, paramset=args.params, seed=args.seed,
-                                out=args.out, prior_path=args.prior, progress=not args.quiet,
-                                command=args.command_line)
-    for t, s in summaries.items():
-        p = s["parameters"]
-        flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
-        print(f"{damper.name} {t} {args.params}: EJ {p['EJ']['median']:.3g} [{p['EJ']['q05']:.3g}, "
-              f"{p['EJ']['q95']:.3g}] N m^2, " + ", ".join(
-                  f"{n} {p[n]['median']:.3g} [{p[n]['q05']:.3g}, {p[n]['q95']:.3g}]"
-                  for n in p if n.startswith("beta")) + f", R-hat max {s['r_hat_max']:.3f}, "
-              f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.1f} s{flag}")
+    with executor_for(args.scheduler) as executor:
+        done = sample_tests(bench, [(damper, t) for t in tests], args.out, settings, executor=executor,
+                            command=args.command_line, reuse=False, progress=not args.quiet)
+    for (name, t), (s, _) in done.items():
+        _print_summary(name, t, args.params, s)
     print(f"stored in {args.out}/{damper.name}/<test>/{args.params}/")
     return 0
 
@@ -169,8 +200,7 @@ def _add_data(sub):
                        description="Validate a bench CSV and report per damper and test: runs, frequency grid, "
                                    "amplitudes, the median coefficient of variation (thesis 2.5) at <= 15 Hz and "
                                    "> 15 Hz before -> after removing outlier runs (Z-score on whole curves, 2.6).")
-    p.add_argument("--bench", metavar="PATH", help="bench .csv, .csv.gz, .xlsx or .parquet (default: the bundled data)")
-    p.add_argument("--sheet", metavar="NAME", help="read only this sheet of an .xlsx workbook (default: every sheet)")
+    _bench_options(p)
     p.add_argument("--json", metavar="OUT", help="also write the summary as JSON")
     p.add_argument("--z-threshold", type=float, default=None, metavar="Z",
                    help="outlier run-score threshold (default 3)")
@@ -226,7 +256,7 @@ def _add_map(sub):
     p.add_argument("--joint", action="store_true",
                    help="also run the joint model: one emcee run over all constant-amplitude tests of --damper "
                         "with EJ on the power law (k, n sampled), beta per test (a minute or two)")
-    p.add_argument("--bench", metavar="PATH", help="bench CSV for --joint (default: the bundled data)")
+    _bench_options(p, "bench file for --joint")
     p.add_argument("--json", metavar="OUT", help="write the fit as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="figure: EJ and beta versus amplitude, every damper in the run store")
     p.add_argument("--seed", type=int, default=0)
@@ -234,16 +264,21 @@ def _add_map(sub):
 
 
 def _cmd_map(args) -> int:
+    from pathlib import Path
+
     from ._io import write_json
-    from .amplitude import amplitude_map, map_dampers, points_from_table
-    from .damper import resolve_damper
+    from .amplitude import amplitude_map, map_from_store, points_from_table, stored_maps
 
     if args.table:
         doc, _ = amplitude_map(points_from_table(args.table), seed=args.seed)
         docs = {"table": doc}
         key = "table"
     else:
-        docs = map_dampers(args.runs, args.params, seed=args.seed, include_oiled=args.include_oiled)
+        root = Path(args.runs)
+        names = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+        for name in names:  # every damper's map is a stage of the run store (map.json + map.nc)
+            map_from_store(args.runs, name, args.params, seed=args.seed, include_oiled=args.include_oiled)
+        docs = stored_maps(args.runs)
         if args.damper not in docs:
             have = ", ".join(docs) or "none"
             raise InputError(f"{args.runs}: no finished {args.params} runs of {args.damper!r} at 3+ amplitudes "
@@ -251,6 +286,7 @@ def _cmd_map(args) -> int:
         key = args.damper
         if args.joint:
             from .amplitude import joint_from_runs
+            from .damper import resolve_damper
 
             doc = docs[key]
             joint = joint_from_runs(resolve_damper(args.damper), _bench_for(args), args.runs, doc, args.params,
@@ -274,8 +310,8 @@ def _cmd_map(args) -> int:
             print(f"{name}: beta = k (A/1mm)^-n with k {b['k'][0]:.3g} [{b['k'][1]:.3g}, {b['k'][2]:.3g}], "
                   f"n {b['n'][0]:.3f} [{b['n'][1]:.3f}, {b['n'][2]:.3f}]")
     if args.json:
-        def public(doc):  # the fitted-law objects are for plots, not JSON
-            return {k: v for k, v in doc.items() if k != "_fits"}
+        def public(doc):  # the law draws are for plots, not JSON
+            return {k: v for k, v in doc.items() if k != "draws"}
 
         out = public(docs[key])
         out["others"] = {k: public(v) for k, v in docs.items() if k != key}
@@ -300,74 +336,58 @@ def _map_problems(doc) -> str:
 
 def _add_report(sub):
     p = sub.add_parser("report", help="write an HTML summary of the stored runs",
-                       description="Write a self-contained static HTML report (index.html + figures/).")
+                       description="Write a self-contained static HTML report (index.html + figures/) of what the "
+                                   "run store holds; it recomputes nothing.")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the amplitude-map fits")
     return p
 
 
 def _cmd_report(args) -> int:
     from .report import build_report
 
-    index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed,
-                         command=args.command_line, progress=lambda t: print(t, file=sys.stderr))
+    index = build_report(args.runs, args.output, paramset=args.params, command=args.command_line)
     print(f"wrote {index}")
     return 0
 
 
 def _add_run(sub):
-    p = sub.add_parser("run", help="the whole job: sample every test of every damper, diagnose, map, report",
-                       description="Sample every test of the chosen dampers (skipping runs that are up to date), "
-                                   "diagnose missing physics, fit the amplitude map and write the HTML report.")
+    p = sub.add_parser("run", help="the whole job: clean, sample every test, diagnose, map, report",
+                       description="Every stage for the chosen dampers, one way through the run store: clean, "
+                                   "sample every test, diagnose missing physics, fit the amplitude map, write the "
+                                   "HTML report. A stored result is reused only when everything it was made from is "
+                                   "unchanged (bench rows, damper file, prior file, settings, seed, sbcal version); "
+                                   "each stage says reused or redone, and why.")
     p.add_argument("--damper", action="append", metavar="NAME|PATH",
                    help="damper (repeatable; default: every damper of the bench file that is bundled)")
-    p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
+    _bench_options(p)
     p.add_argument("--params", default="theta1", metavar="SET")
+    p.add_argument("--priors", metavar="PATH", help="prior file (default: the bundled priors/default.toml)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
-                   help="tests in parallel processes (default: 2 or the cores there are)")
+    _scale_options(p)
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
     return p
 
 
 def _cmd_run(args) -> int:
-    import json
-    from pathlib import Path
-
-    from ._io import write_json
-    from .calibrate import calibrate_tests, is_up_to_date
     from .damper import bundled_dampers, resolve_damper
-    from .diagnose import diagnose
-    from .diagnose import is_up_to_date as is_diagnosed
-    from .report import build_report
+    from .pipeline import executor_for, run
 
     bench = _bench_for(args)
     names = args.damper or [d for d in bench.dampers() if d in bundled_dampers()]
     if not names:
         raise InputError(f"{bench.source}: none of its dampers ({', '.join(bench.dampers())}) is bundled; "
                          "name a description with --damper PATH")
-    command = args.command_line
-    for name in names:
-        damper = resolve_damper(name)
-        tests = bench.tests(damper.name)
-        todo = [t for t in tests if not is_up_to_date(args.runs, damper, bench, t, args.params, args.seed)]
-        print(f"{damper.name}: {len(tests)} tests, {len(tests) - len(todo)} up to date, sampling {len(todo)}",
-              file=sys.stderr)
-        calibrate_tests(damper, bench, todo, workers=args.workers, paramset=args.params, seed=args.seed,
-                        out=args.runs, command=command)
-        stored = Path(args.runs) / damper.name / "diagnose.json"
-        if is_diagnosed(stored, bench, args.seed):
-            print(f"{damper.name}: diagnosis up to date", file=sys.stderr)
-        else:
-            result = diagnose(damper, bench, seed=args.seed)
-            result["command"] = command
-            write_json(stored, result, indent=1)
-        print(f"{damper.name}: missing physics: {json.loads(stored.read_text())['verdict']}")
-    index = build_report(args.runs, args.output, paramset=args.params, seed=args.seed, command=command,
-                         progress=lambda t: print(t, file=sys.stderr))
+    dampers = [resolve_damper(n) for n in names]
+    for d in dampers:
+        if d.name not in bench.dampers():
+            raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
+    settings = _settings(args)
+    with executor_for(args.scheduler) as executor:
+        index = run(bench, dampers, args.runs, args.output, settings, executor=executor,
+                    command=args.command_line, progress=not args.quiet)
     print(f"wrote {index}")
     return 0
 
@@ -433,13 +453,14 @@ def _add_diagnose(sub):
                                    "by PSIS-LOO and give a verdict (docs/diagnose.md).")
     p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
                    help="bundled damper name or TOML path (default damper1)")
-    p.add_argument("--bench", metavar="PATH", help="bench CSV (default: the bundled data)")
+    _bench_options(p)
     p.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels (default: all of the damper's)")
+    p.add_argument("--priors", metavar="PATH", help="prior file of the base parameters (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--json", metavar="OUT", help="write the diagnosis as JSON")
     p.add_argument("--runs", default="runs", metavar="DIR",
                    help="also store it as DIR/<damper>/diagnose.json for the report (default runs/)")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+    _scale_options(p, "fits in parallel local processes")
     return p
 
 
@@ -450,10 +471,25 @@ def _cmd_diagnose(args) -> int:
     from .damper import resolve_damper
     from .diagnose import diagnose
 
+    from dataclasses import replace
+
+    from .pipeline import diagnose_inputs, executor_for
+
     damper = resolve_damper(args.damper)
     bench = _bench_for(args)
-    result = diagnose(damper, bench, args.tests, seed=args.seed, progress=not args.quiet)
+    settings = _settings(args)
+    config = replace(settings.diagnose, workers=args.workers)
+    with executor_for(args.scheduler) as executor:
+        if executor is not None:  # the diagnosis as one job on the cluster
+            result = executor.submit(diagnose, damper, bench, args.tests, seed=args.seed,
+                                     config=replace(config, workers=1), progress=False,
+                                     prior_path=args.priors).result()
+        else:
+            result = diagnose(damper, bench, args.tests, seed=args.seed, config=config, progress=not args.quiet,
+                              prior_path=args.priors)
     result["command"] = args.command_line
+    if args.tests is None:  # a whole-damper diagnosis: 'sbcal run' may reuse it while its inputs hold
+        result["inputs"] = diagnose_inputs(bench, damper, settings)
     if args.json:
         write_json(args.json, result, indent=1)
     stored = Path(args.runs) / damper.name / "diagnose.json"

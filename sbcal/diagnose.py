@@ -33,8 +33,8 @@ from scipy import stats
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
-from .bench import remove_outlier_runs
-from .calibrate import _fingerprint, likelihood_for
+from .bench import remove_outlier_runs, rows_digest
+from .calibrate import likelihood_for
 from .damper import Damper
 from .errors import InputError
 from .extensions import EXTENSIONS, model_for
@@ -46,7 +46,7 @@ from .runs import versions
 from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
 
-__all__ = ["DiagnoseConfig", "diagnose", "is_up_to_date"]
+__all__ = ["DiagnoseConfig", "diagnose"]
 
 _QUANTITIES = ("magnitude", "phase")
 _LABEL = re.compile(r"^\d+(?:\.\d+)?-\d+(?:\.\d+)?(?:-(.+))?$")
@@ -461,45 +461,31 @@ def _pointwise(fits, keys, tests, joint: bool, n_runs: dict) -> np.ndarray:
     return np.concatenate([parts[t] for t in tests])
 
 
-def _likes(damper, bench, tests, effect):
+def _likes(damper, bench, tests, effect, prior_path=None):
     out = []
     for t in tests:
         data = remove_outlier_runs(bench.test(damper.name, t)).data
-        out.append(likelihood_for(damper, data, extension_prior(effect, damper),
+        out.append(likelihood_for(damper, data, extension_prior(effect, damper, base_path=prior_path),
                                   model=model_for(effect, data.amplitude_mm_pp)))
     return out
 
 
-def _jobs(effect, damper, bench, tests, ss, config):
+def _jobs(effect, damper, bench, tests, ss, config, prior_path=None):
     """Fit jobs of one model: one per test, or one per cable state for a joint extension."""
-    likes = _likes(damper, bench, tests, effect)
+    likes = _likes(damper, bench, tests, effect, prior_path)
     if effect != "baseline" and EXTENSIONS[effect].joint:
         jobs = []
         for g in sorted({_group(t) for t in tests}):
             members = [lk for t, lk in zip(tests, likes) if _group(t) == g]
             amp = np.concatenate([lk.amplitude_mm_pp for lk in members])
-            like = JointLikelihood(members, extension_prior(effect, damper), model_for(effect, amp))
+            like = JointLikelihood(members, extension_prior(effect, damper, base_path=prior_path), model_for(effect, amp))
             jobs.append(((effect, g), like, ss.spawn(1)[0], config))
         return jobs, likes
     return [((effect, t), lk, s, config) for t, lk, s in zip(tests, likes, ss.spawn(len(tests)))], likes
 
 
-def is_up_to_date(path, bench, seed: int, config: DiagnoseConfig = DiagnoseConfig()) -> bool:
-    """True when ``path`` holds a diagnosis of this very bench file (sha256) with this seed and settings."""
-    import json
-    from pathlib import Path
-
-    try:
-        doc = json.loads(Path(path).read_text())
-        same = {k: v for k, v in asdict(config).items() if k != "workers"}
-        return (doc["bench"]["sha256"] == _fingerprint(bench) and doc["seed"] == seed
-                and {k: v for k, v in doc["settings"].items() if k != "workers"} == same)
-    except (OSError, ValueError, KeyError, TypeError):
-        return False
-
-
 def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: DiagnoseConfig = DiagnoseConfig(),
-             progress: bool = True, effects=None) -> dict:
+             progress: bool = True, effects=None, prior_path=None) -> dict:
     """Locate, name, model and show the physics a damper's recordings have and the model lacks.
 
     Parameters
@@ -515,6 +501,8 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         Progress bars on stderr (when it is a terminal).
     effects : sequence of str, optional
         Restrict the catalogue (default: all of :data:`sbcal.extensions.EXTENSIONS`).
+    prior_path : path-like, optional
+        The prior file of the base parameters (``--priors``; default the bundled ``priors/default.toml``).
 
     Returns
     -------
@@ -539,7 +527,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     seqs = dict(zip(["baseline"] + list(EXTENSIONS), root.spawn(len(EXTENSIONS) + 1)))
 
     # 1-2. baseline and locate
-    jobs, likes = _jobs("baseline", damper, bench, tests, seqs["baseline"], config)
+    jobs, likes = _jobs("baseline", damper, bench, tests, seqs["baseline"], config, prior_path)
     fits = _run_fits(jobs, config, label("per-test fits"))
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]
@@ -556,7 +544,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     ranking, summaries, checks = [], {}, {}
     all_jobs = []
     for e in candidates:
-        jobs_e, _ = _jobs(e, damper, bench, tests, seqs[e], config)
+        jobs_e, _ = _jobs(e, damper, bench, tests, seqs[e], config, prior_path)
         all_jobs += jobs_e
     if all_jobs:
         fits.update(_run_fits(all_jobs, config, label(f"{len(candidates)} candidate extension(s)")))
@@ -592,7 +580,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
                              "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
     result = {
         "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict,
-        "bench": {"path": str(bench.source), "sha256": _fingerprint(bench)},
+        "bench": {"path": str(bench.source), "rows_sha256": rows_digest(bench, damper.name)},
         "rule": (f"none if no line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
                  f"{config.alpha:g} over all lines); else the best extension if delta_elpd > {config.clear_se:g} se "
                  f"and it removes >= {config.min_explained:.0%} of the squared misfit in the bands; else unexplained"),

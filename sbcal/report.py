@@ -127,15 +127,13 @@ def _trace_figure(idata, names, path: Path) -> str:
     return _save(fig, path)
 
 
-def _cv_figure(bench, damper: str, tests, path: Path) -> str:
-    from .bench import quality_table
-
+def _cv_figure(quality: dict, path: Path) -> str:
+    """CV per line of every test, from the stored cleaning stage (``data.json``'s ``quality``)."""
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
-    for t in tests:
-        q = quality_table(bench.test(damper, t))
-        axes[0].plot(q.frequency_hz, q.magnitude_cv, lw=1, label=t)
-        axes[1].plot(q.frequency_hz, q.phase_cv, lw=1, label=t)
+    for t, q in quality.items():
+        axes[0].plot(q["frequency_hz"], q["magnitude_cv"], lw=1, label=t)
+        axes[1].plot(q["frequency_hz"], q["phase_cv"], lw=1, label=t)
     axes[0].set(xlabel="frequency [Hz]", ylabel="CV of |F/X| [%]", title="Run-to-run spread, magnitude")
     axes[1].set(xlabel="frequency [Hz]", ylabel="CV of phase [%]", title="Run-to-run spread, phase")
     for ax in axes:
@@ -195,9 +193,12 @@ def _fmt(v, digits=4):
     return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
 
 
-def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", seed: int = 0,
-                 command: str = "", progress=None) -> Path:
+def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", command: str = "",
+                 progress=None) -> Path:
     """Write ``<out_dir>/index.html`` (and ``figures/``) from a run store; returns its path.
+
+    Renders what the stages stored and recomputes nothing: the cleaning summary (``data.json``), the
+    posteriors, the diagnosis (``diagnose.json``) and the amplitude map (``map.json`` + ``map.nc``).
 
     Parameters
     ----------
@@ -206,17 +207,17 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     out_dir : path-like
     paramset : str
         Parameter set whose runs are reported.
-    seed : int
-        Seed of the amplitude-map fits.
     command : str
         Command line, for provenance.
     progress : callable, optional
         Called with a short text per step.
     """
+    import json
+
     from jinja2 import Environment, PackageLoader, select_autoescape
 
-    from .amplitude import map_dampers, plot_map
-    from .bench import THESIS_TESTS, load_bench
+    from .amplitude import plot_map, stored_maps
+    from .bench import THESIS_TESTS
     from .runs import read_run, run_dir
 
     say = progress or (lambda text: None)
@@ -230,7 +231,12 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     for dname in sorted(p.name for p in runs.iterdir() if p.is_dir()):
         say(f"report: {dname}")
         tests_dirs = sorted({p.parent.name for p in (runs / dname).glob(f"*/{paramset}")})
-        bench, bench_note, expected = None, "", []
+        data_path = runs / dname / "data.json"
+        try:
+            data = json.loads(data_path.read_text()) if data_path.is_file() else None
+        except ValueError as e:
+            raise InputError(f"{data_path}: not valid JSON ({e})") from None
+        expected = list(data["tests"]) if data else []
         tests = []
         for t in tests_dirs:
             d = run_dir(runs, dname, t, paramset)
@@ -242,12 +248,6 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                 tests.append(item)
                 continue
             item.summary = s
-            if bench is None and s.get("config", {}).get("bench"):
-                try:
-                    bench = load_bench(s["config"]["bench"])
-                    expected = bench.tests(dname)
-                except InputError as e:
-                    bench_note = f"bench data not available: {e}"
             names = list(s["parameters"])
             model_names = [n for n in names if not n.startswith("sigma_")]
             stem = f"{dname}_{t}".replace("/", "_")
@@ -270,28 +270,22 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
             if t not in have:
                 tests.append(_Test(label=t, paramset=paramset, missing="not sampled yet"))
         tests.sort(key=lambda t: (order.get(t.label, len(order)), t.label))
-        quality = []
-        cv_fig = None
-        if bench is not None:
-            from .bench import remove_outlier_runs
-
-            for t in expected:
-                td = bench.test(dname, t)
-                c = remove_outlier_runs(td)
-                quality.append({"test": t, "runs": len(td.runs), "removed": ", ".join(map(str, c.removed_runs)) or "none",
-                                "amplitudes": ", ".join(f"{a:g}" for a in np.unique(td.amplitude_mm_pp)),
-                                "lines": len(td.freq_hz)})
-            cv_fig = _cv_figure(bench, dname, expected, figs / f"{dname}_cv.png")
+        quality, cv_fig = [], None
+        if data:
+            for t, q in data["tests"].items():
+                branches = q.get("branches") or {}
+                quality.append({"test": t, "runs": q["runs"], "removed": ", ".join(map(str, q["removed_runs"])) or "none",
+                                "amplitudes": ", ".join(f"{a:g}" for a in q["amplitude_mm_pp"]),
+                                "lines": q["n_frequencies"],
+                                "branches": "two response branches, both kept" if branches.get("split") else ""})
+            cv_fig = _cv_figure(data["quality"], figs / f"{dname}_cv.png")
+        bench_note = "" if data else f"no cleaning stage stored ({data_path} is missing; 'sbcal run' writes it)"
         dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note,
                         "diagnosis": _diagnosis(runs / dname / "diagnose.json", figs)})
 
     say("report: amplitude map")
-    try:
-        docs = map_dampers(runs, paramset, seed=seed)
-    except InputError as e:
-        docs, map_note = {}, str(e)
-    else:
-        map_note = "" if docs else "fewer than 3 amplitudes sampled for every damper: no map yet"
+    docs = stored_maps(runs)
+    map_note = "" if docs else "none stored ('sbcal map' or 'sbcal run' writes it from 3 or more amplitudes)"
     map_fig = None
     map_rows = []
     if docs:
@@ -300,7 +294,9 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
         for name, doc in docs.items():
             pl, sat = doc["powerlaw"], doc["saturating"]
             row = {"damper": name, "k": pl["k"], "n": pl["n"], "ej_inf": sat["EJ_inf"],
-                   "tau": sat.get("reduction_factor"), "preferred": doc["preferred"], "criterion": doc["criterion"]}
+                   "reduction": sat.get("reduction_factor"), "preferred": doc["preferred"], "criterion": doc["criterion"],
+                   "converged": doc.get("converged", False),
+                   "problems": ", ".join(doc.get("inputs_not_converged", []))}
             if doc.get("beta"):
                 row["beta_k"], row["beta_n"] = doc["beta"]["powerlaw"]["k"], doc["beta"]["powerlaw"]["n"]
             map_rows.append(row)

@@ -26,7 +26,7 @@ from .errors import InputError
 from .stats import arviz_version, inference_data, read_netcdf
 
 __all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
-           "posterior_draws", "parameter_summary", "StoredTest"]
+           "posterior_draws", "parameter_summary", "StoredTest", "write_map", "read_map"]
 
 SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
 
@@ -185,3 +185,29 @@ def posterior_draws(runs_dir, damper: str, paramset: str, parameters):
         amplitude = float(amp[0]) if np.allclose(amp, amp[0]) else None
         yield StoredTest(d.parent.name, amplitude, {p: np.asarray(idata.posterior[p]).ravel()
                                                     for p in parameters if p in idata.posterior}, summary)
+
+
+def write_map(directory, results: dict) -> Path:
+    """Store the amplitude map's law posteriors as ``map.nc``: variables ``<law>__<parameter>``
+    (chain, draw), each law's convergence as JSON in the attributes. Written atomically."""
+    posterior = {f"{law}__{n}": v for law, res in results.items() for n, v in res.draws.items()}
+    idata = inference_data(posterior=posterior)
+    idata.posterior.attrs["convergence"] = json.dumps({law: res.convergence_dict() for law, res in results.items()},
+                                                      sort_keys=True)
+    path = Path(directory) / "map.nc"
+    with atomic_path(path, ".nc") as tmp:
+        idata.to_netcdf(str(tmp))
+    return path
+
+
+def read_map(directory) -> dict:
+    """The law draws of a stored ``map.nc``: ``{law: {parameter: flattened draws}}`` ({} when absent)."""
+    path = Path(directory) / "map.nc"
+    if not path.is_file():
+        return {}
+    post = read_netcdf(path).posterior
+    out = {}
+    for name in post.data_vars:
+        law, _, param = name.partition("__")
+        out.setdefault(law, {})[param] = np.asarray(post[name]).ravel()
+    return out

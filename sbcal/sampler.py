@@ -14,11 +14,12 @@ Steps:
 
 1. **Start**: the posterior mode, from a differential-evolution search over the prior box (or the
    caller's ``start``), polished by L-BFGS-B.
-2. **Ensembles**: ``n_ensembles`` independently seeded ``emcee.EnsembleSampler`` ensembles
-   (differential-evolution moves), their walkers drawn from the Laplace approximation at the mode
-   (a small ball where the mode sits on a bound), advanced in lock-step rounds
-   (one process per ensemble when ``workers > 1``; each carries its own random state, so the draws
-   do not depend on the number of workers or on the round lengths).
+2. **Ensembles**: ``n_ensembles`` independent ensembles of walkers, each started from its own seed
+   (its walkers drawn from the Laplace approximation at the mode; a small ball where the mode sits on
+   a bound) and moved by differential evolution within itself (:class:`_Ensembles`), all held side by
+   side in one ``emcee.EnsembleSampler`` so that one vectorised log-density call advances every
+   ensemble (``workers > 1`` splits them over processes). Each ensemble draws from its own generator,
+   so the draws do not depend on the number of workers or on how the run is cut into rounds.
 3. **The convergence policy** (:data:`POLICY`, the one place it is set): after discarding the first
    ``burn_fraction`` of every chain, the kept run must be at least ``tau_factor`` integrated
    autocorrelation times of every parameter long, and across the ensembles R-hat <= 1.01 and bulk and
@@ -283,21 +284,75 @@ def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
 
 # --- the ensembles -------------------------------------------------------------------------
 
-_MOVES = ((emcee.moves.DEMove, 0.8), (emcee.moves.DESnookerMove, 0.2))
+class _Ensembles(emcee.moves.Move):
+    """Differential-evolution moves for several independent ensembles held side by side in one emcee
+    sampler, so that one vectorised log-density call advances all of them.
+
+    Walkers ``[g W, (g + 1) W)`` form ensemble g. Each step, every ensemble splits its walkers in two
+    halves at random and moves each half by the differential-evolution proposal
+    ``x + gamma (x_a - x_b)`` with ``x_a != x_b`` drawn from its own other half (ter Braak 2006;
+    ``gamma = 2.38 / sqrt(2 ndim)`` with a 1e-5 relative jitter as emcee's ``DEMove``, and ``gamma = 1``
+    in a tenth of the proposals, ter Braak's jump between modes), accepted by Metropolis. An ensemble
+    never sees another's walkers and draws every random number from its own generator, so the
+    ensembles are independent, independently seeded chains: the same as running them one by one, in
+    any grouping over processes.
+    """
+
+    def __init__(self, n_walkers: int, generators):
+        self.n_walkers, self.generators = n_walkers, list(generators)
+
+    def propose(self, model, state):
+        coords, w = state.coords, self.n_walkers
+        gamma0 = 2.38 / np.sqrt(2 * coords.shape[1])
+        halves = [g * w + rng.permutation(w) for g, rng in enumerate(self.generators)]
+        accepted = np.zeros(len(coords), dtype=bool)
+        for h in (0, 1):
+            moving, proposals, log_u = [], [], []
+            for perm, rng in zip(halves, self.generators):
+                s, c = (perm[: w // 2], perm[w // 2:]) if h == 0 else (perm[w // 2:], perm[: w // 2])
+                a = rng.integers(len(c), size=len(s))
+                b = (a + rng.integers(1, len(c), size=len(s))) % len(c)  # a pair of distinct walkers
+                gamma = np.where(rng.random(len(s)) < 0.1, 1.0, gamma0 * (1 + 1e-5 * rng.standard_normal(len(s))))
+                proposals.append(coords[s] + gamma[:, None] * (coords[c[a]] - coords[c[b]]))
+                log_u.append(np.log(rng.random(len(s))))
+                moving.append(s)
+            idx, q, log_u = np.concatenate(moving), np.concatenate(proposals), np.concatenate(log_u)
+            new_lp, _ = model.compute_log_prob_fn(q)
+            ok = new_lp - state.log_prob[idx] > log_u
+            coords[idx[ok]], state.log_prob[idx[ok]] = q[ok], new_lp[ok]
+            accepted[idx[ok]] = True
+        return state, accepted
 
 
 def _advance(job):
-    """Run one ensemble ``steps`` further from ``state``; module-level so a process can run it."""
-    target, state, steps = job
-    nwalkers, ndim = state.coords.shape
-    sampler = emcee.EnsembleSampler(nwalkers, ndim, target, vectorize=True, moves=[(m(), w) for m, w in _MOVES])
-    state = sampler.run_mcmc(state, steps, progress=False)
-    return sampler.get_chain(), sampler.get_log_prob(), state, sampler.backend.accepted.copy()
+    """Run some ensembles (side by side) ``steps`` further; module-level so a process can run it.
+
+    ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), steps)``; returns the
+    chain, the log-probabilities, the final coords/log-probs, the generators' states and the
+    acceptance counts per walker.
+    """
+    target, coords, log_prob, gen_states, steps = job
+    generators = []
+    for st in gen_states:
+        g = np.random.Generator(np.random.PCG64())
+        g.bit_generator.state = st
+        generators.append(g)
+    n, ndim = coords.shape
+    move = _Ensembles(n // len(generators), generators)
+    sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
+    state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
+    return (sampler.get_chain(), sampler.get_log_prob(), state.coords, state.log_prob,
+            [g.bit_generator.state for g in generators], sampler.backend.accepted.copy())
 
 
-def _tau(chain) -> np.ndarray:
-    """Integrated autocorrelation time of each parameter of one ensemble's chain ``(steps, walkers, ndim)``."""
-    return emcee.autocorr.integrated_time(chain, c=5, tol=0, quiet=True)
+def _tau(chain) -> tuple[np.ndarray, int]:
+    """Integrated autocorrelation time of each parameter of one ensemble's chain ``(steps, walkers, ndim)``
+    (emcee's estimator over the walkers that moved), and the number of walkers that never moved."""
+    moving = np.ptp(chain, axis=0).max(axis=1) > 0  # (walkers,)
+    if not moving.any():
+        return np.full(chain.shape[-1], np.inf), chain.shape[1]
+    tau = emcee.autocorr.integrated_time(chain[:, moving], c=5, tol=0, quiet=True)
+    return np.where(np.isfinite(tau), tau, np.inf), int((~moving).sum())
 
 
 def _draws(chains, lps, burn, thin):
@@ -307,18 +362,24 @@ def _draws(chains, lps, burn, thin):
     return x, lp
 
 
-def _assess(chains, lps, n, names, config):
+def _assess(chains, lps, n, names, config, to_natural):
     """``(done, reason, tau, thin, draws, lp, diagnostics, need)`` after ``n`` steps of every ensemble."""
     burn = int(config.burn_fraction * n)
     kept = n - burn
-    taus = np.array([_tau(c[burn:]) for c in chains])  # (n_chains, ndim)
-    tau = taus.max(axis=0)
-    need = int(math.ceil(config.tau_factor * tau.max() / (1 - config.burn_fraction)))
+    estimates = [_tau(c[burn:]) for c in chains]
+    tau = np.max([t for t, _ in estimates], axis=0)  # (ndim,): the worst ensemble
+    stuck = sum(k for _, k in estimates)
+    finite = np.isfinite(tau).all()
+    need = int(math.ceil(config.tau_factor * tau.max() / (1 - config.burn_fraction))) if finite else config.max_steps
     nwalkers = chains[0].shape[1]
-    thin = max(1, int(math.ceil(tau.max() / 2)), int(math.ceil(kept * nwalkers / config.max_draws)))
+    thin = max(1, int(math.ceil(tau.max() / 2)) if finite else 1, int(math.ceil(kept * nwalkers / config.max_draws)))
     x, lp = _draws(chains, lps, burn, thin)
-    diag = convergence({nm: x[:, :, i] for i, nm in enumerate(names)})
+    # on the natural-unit draws that are stored (the folded R-hat is not invariant under log)
+    natural = to_natural(x.reshape(-1, x.shape[-1])).reshape(x.shape)
+    diag = convergence({nm: natural[:, :, i] for i, nm in enumerate(names)})
     problems = []
+    if stuck:
+        problems.append(f"{stuck} walker(s) never moved in the kept run")
     if kept < config.tau_factor * tau.max():
         worst = names[int(np.argmax(tau))]
         problems.append(f"run {kept} steps < {config.tau_factor:g} x tau ({worst}: tau {tau.max():.0f})")
@@ -365,28 +426,43 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         bar.set_postfix_str("finding the mode")
         z0 = _start(target, start, np.random.default_rng(seqs[0]), config)
         cov = _laplace(target, z0)
-        states = []
-        for ss in seqs[1:]:
+        coords, gens = [], []
+        for ss in seqs[1:]:  # each ensemble: its own start and its own generator
             rng = np.random.default_rng(ss)
-            p0 = _initial(target, z0, cov, nwalkers, rng)
-            states.append(emcee.State(p0, random_state=np.random.RandomState(rng.integers(2**32)).get_state()))
-        chains, lps = [[] for _ in states], [[] for _ in states]
-        accepted = np.zeros((len(states), nwalkers))
+            coords.append(_initial(target, z0, cov, nwalkers, rng))
+            gens.append(rng.bit_generator.state)
+        coords = np.concatenate(coords)
+        log_prob = target(coords)
+        # the ensembles are cut into one group per process; the draws do not depend on the cut
+        groups = np.array_split(np.arange(config.n_ensembles), min(max(config.workers, 1), config.n_ensembles))
+        chains, lps = [], []
+        accepted = np.zeros(len(coords))
         n, block = 0, min(config.first_steps, config.max_steps)
-        workers = min(config.workers, config.n_ensembles)
-        pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
+        pool = ProcessPoolExecutor(max_workers=len(groups)) if len(groups) > 1 else None
         try:
             while True:
-                jobs = [(target, s, block) for s in states]
-                for e, (c, lp, s, acc) in enumerate(pool.map(_advance, jobs) if pool else map(_advance, jobs)):
-                    chains[e].append(c)
-                    lps[e].append(lp)
-                    states[e] = s
-                    accepted[e] += acc
+                jobs = []
+                for grp in groups:
+                    rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
+                    jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp], block))
+                pieces_c, pieces_l = [], []
+                for grp, (c, lp, cs, ls, gs, acc) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
+                    rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
+                    coords[rows], log_prob[rows] = cs, ls
+                    for e, st in zip(grp, gs):
+                        gens[e] = st
+                    accepted[rows] += acc
+                    pieces_c.append(c)
+                    pieces_l.append(lp)
+                chains.append(np.concatenate(pieces_c, axis=1))  # (steps, ensembles x walkers, ndim)
+                lps.append(np.concatenate(pieces_l, axis=1))
                 n += block
-                chain_arr = [np.concatenate(c) for c in chains]
-                lp_arr = [np.concatenate(v) for v in lps]
-                done, reason, tau, burn, thin, x, lp, diag, need = _assess(chain_arr, lp_arr, n, names, config)
+                chain = np.concatenate(chains)
+                lp_all = np.concatenate(lps)
+                per = [chain[:, e * nwalkers:(e + 1) * nwalkers] for e in range(config.n_ensembles)]
+                per_lp = [lp_all[:, e * nwalkers:(e + 1) * nwalkers] for e in range(config.n_ensembles)]
+                done, reason, tau, burn, thin, x, lp, diag, need = _assess(per, per_lp, n, names, config,
+                                                                           prior.to_natural)
                 bar.total = max(need, n)
                 bar.update(block)
                 bar.set_postfix_str(f"tau {max(tau.values()):.0f}")
@@ -409,7 +485,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         loglik = np.concatenate(parts).reshape(x.shape[0], x.shape[1], -1)
     return SampleResult(
         names=names, draws={nm: v.reshape(x.shape[:2]) for nm, v in params.items()}, log_prob=lp, log_likelihood=loglik,
-        tau=tau, acceptance=accepted.mean(axis=1) / n, r_hat={k: v["r_hat"] for k, v in diag.items()},
+        tau=tau, acceptance=accepted.reshape(config.n_ensembles, nwalkers).mean(axis=1) / n, r_hat={k: v["r_hat"] for k, v in diag.items()},
         ess_bulk={k: v["ess_bulk"] for k, v in diag.items()}, ess_tail={k: v["ess_tail"] for k, v in diag.items()},
         n_steps=n, burn=burn, thin=thin, converged=bool(done),
         reason="" if done else f"stopped at the {config.max_steps}-step cap: {reason}",

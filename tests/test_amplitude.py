@@ -22,7 +22,7 @@ def points(rng, k, n, sd, scatter=0.0):
 def test_recovers_k_and_n_from_per_test_posteriors():
     """90 % intervals of k and n contain the truth at (about) the nominal rate over repeated data sets."""
     rng = np.random.default_rng(5)
-    trials = 16
+    trials = 40
     hits = {"k": 0, "n": 0}
     for t in range(trials):
         k, n = float(rng.uniform(6, 14)), float(rng.uniform(0.2, 0.7))
@@ -56,7 +56,9 @@ def test_table_mode_recovers_known_exponent(tmp_path, capsys):
     d = json.loads(out.read_text())
     assert d["powerlaw"]["n"][1] <= 0.37 <= d["powerlaw"]["n"][2]
     assert abs(d["powerlaw"]["n"][0] - 0.37) < 0.005 and abs(d["powerlaw"]["k"][0] - 12.5) < 0.1
-    assert d["powerlaw"]["convergence"]["converged"] and d["converged"]
+    assert d["powerlaw"]["convergence"]["converged"]
+    # exact values leave the saturating law's c and n unidentified: that fit is reported, flagged
+    assert not d["saturating"]["convergence"]["converged"] and not d["converged"]
 
 
 def _saturating_points(rng, ej_inf, c, n, sd):

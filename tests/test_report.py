@@ -8,12 +8,12 @@ import pytest
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
 from sbcal.bench import curves_to_frame, load_bench, write_bench
-from sbcal.calibrate import calibrate_test
+from sbcal.pipeline import Settings, clean_damper, map_damper, sample_tests
 from sbcal.cli import main
 from sbcal.damper import resolve_damper
 from sbcal.sampler import SamplerConfig
 
-FAST = SamplerConfig(nwalkers=16, n_ensembles=2, tau_factor=20, max_draws=200, ga_population=30, ga_generations=60)
+FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)
 
 
 class _Refs(HTMLParser):
@@ -57,8 +57,10 @@ def run_store(tmp_path_factory):
     write_bench(pd.concat(frames), path)
     bench = load_bench(path)
     runs = tmp / "runs"
-    for t in ("0.2-0.2", "0.5-0.5", "1-1"):
-        calibrate_test(d, bench, t, seed=3, out=runs, config=FAST, progress=False)
+    settings = Settings(seed=3, sampler=FAST, workers=2)
+    clean_damper(bench, d, runs, settings)
+    sample_tests(bench, [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], runs, settings, progress=False)
+    map_damper(runs, "damper1", settings)
     return runs
 
 
@@ -93,6 +95,28 @@ def test_map_on_stored_runs(run_store, tmp_path):
     assert d["powerlaw"]["n"][1] > 0
     assert {t["test"] for t in d["tests"]} == {"0.2-0.2", "0.5-0.5", "1-1"}
     assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+def test_report_shows_what_the_store_says(run_store, tmp_path):
+    """The report renders the stored stages and recomputes nothing: its map numbers are the ones of
+    'sbcal map --json' (the stored map.json), its removed runs those of the stored cleaning stage."""
+    import json
+
+    out = tmp_path / "m.json"
+    assert main(["map", "--runs", str(run_store), "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert main(["report", "--runs", str(run_store), "-o", str(tmp_path / "rep")]) == 0
+    page = (tmp_path / "rep" / "index.html").read_text()
+    for name in ("k", "n"):
+        v = doc["powerlaw"][name]
+        assert f'<td class="{name}">{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]</td>' in page
+    data = json.loads((run_store / "damper1" / "data.json").read_text())
+    for t, q in data["tests"].items():
+        removed = ", ".join(map(str, q["removed_runs"])) or "none"
+        assert f"<td>{t}</td><td>{q['runs']}</td><td>{removed}</td>" in page
+    # a stored map the report shows is the store's: change it and the page changes with it
+    stored = json.loads((run_store / "damper1" / "map.json").read_text())
+    assert stored["powerlaw"]["k"] == doc["powerlaw"]["k"]
 
 
 def test_report_on_missing_store(tmp_path, capsys):

@@ -1,0 +1,345 @@
+"""The whole job, one way: clean -> sample -> diagnose -> map -> report, through the run store.
+
+Each stage writes its result to the run store and later stages read only stored results::
+
+    <runs>/<damper>/data.json                      clean: per-test cleaning and quality (sbcal data)
+    <runs>/<damper>/<test>/<paramset>/posterior.nc + summary.json     sample
+    <runs>/<damper>/diagnose.json                  diagnose
+    <runs>/<damper>/map.json + map.nc              map (the laws' summaries and posterior draws)
+    <report>/index.html                            report (renders the store, recomputes nothing)
+
+**Fresh or redone.** Every stored result carries ``inputs``: digests of everything it was made
+from — the bench rows it used (the test's rows for a posterior, the damper's for its other stages),
+the damper description, the prior file(s), the settings, the seed and the sbcal version (a map: the
+digests of the posteriors it rests on). A stored result is reused only when its inputs equal the
+current ones; otherwise the stage is redone, and :func:`run` says which input changed.
+
+Tests and dampers are independent jobs, run through any ``concurrent.futures``-style executor: a
+process pool here, or a Dask distributed cluster (``executor_for(scheduler=ADDRESS)``). Every job's
+random numbers come from the seed alone (never from the order of jobs or the worker it lands on), so
+the same seed gives the same numbers locally and on a cluster.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+from ._io import write_json
+from .bench import DEFAULT_Z_THRESHOLD, bench_summary, quality_table, rows_digest
+from .damper import Damper
+from .errors import InputError
+from .progress import progress_bar
+
+__all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "sample_inputs",
+           "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run"]
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What a run is made with, besides the data: parameter set, seed, priors and engine settings.
+
+    Attributes
+    ----------
+    paramset : str
+    seed : int
+    priors : str or None
+        A prior file (``--priors``); None is the bundled ``priors/default.toml``.
+    sampler : SamplerConfig
+    diagnose : DiagnoseConfig
+    z_threshold : float
+        Outlier-run threshold of the cleaning.
+    workers : int
+        Local processes (ignored on a cluster).
+    """
+
+    paramset: str = "theta1"
+    seed: int = 0
+    priors: str | None = None
+    sampler: object = None
+    diagnose: object = None
+    z_threshold: float = DEFAULT_Z_THRESHOLD
+    workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
+
+    def __post_init__(self):
+        from .diagnose import DiagnoseConfig
+        from .sampler import SamplerConfig
+
+        if self.sampler is None:
+            object.__setattr__(self, "sampler", SamplerConfig())
+        if self.diagnose is None:
+            object.__setattr__(self, "diagnose", DiagnoseConfig())
+
+
+# --- digests -------------------------------------------------------------------------------
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def inputs_digest(obj) -> str:
+    """sha256 of a JSON-serialisable object (keys sorted)."""
+    return _sha(json.dumps(obj, sort_keys=True, default=str).encode())
+
+
+def file_digest(path=None, bundled: str = "default.toml") -> str:
+    """sha256 of a prior file (the bundled one when ``path`` is None)."""
+    from .priors import _default_path
+
+    if path is None:
+        return _sha(_default_path(bundled).read_bytes())
+    try:
+        return _sha(Path(path).read_bytes())
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+
+
+def _damper_digest(damper: Damper) -> str:
+    return inputs_digest({k: v for k, v in asdict(damper).items() if k != "source"})
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def changed(stored: dict | None, current: dict) -> list[str]:
+    """Which inputs differ (``["new"]`` when nothing is stored); empty when the stored result is fresh."""
+    if not stored or "inputs" not in stored:
+        return ["new"]
+    old = stored["inputs"]
+    return [k for k in current if old.get(k) != current[k]] + [k for k in old if k not in current]
+
+
+_WHY = {"bench_rows": "bench rows changed", "damper": "damper description changed", "priors": "prior file changed",
+        "settings": "settings changed", "seed": "seed changed", "sbcal": "sbcal version changed",
+        "posteriors": "per-test posteriors changed", "new": "not stored yet", "paramset": "parameter set changed"}
+
+
+def _why(keys) -> str:
+    return ", ".join(_WHY.get(k, f"{k} changed") for k in keys)
+
+
+# --- executors -----------------------------------------------------------------------------
+
+@contextmanager
+def executor_for(scheduler: str | None = None):
+    """A context giving the executor of a running Dask distributed cluster at ``scheduler``
+    (``pip install "sbcal[dask]"``), or None (local work: process pools where they help).
+
+    The Dask client is closed on exit (a client left open would stay the default scheduler of the
+    process, and xarray would take its locks when writing netCDF)."""
+    if not scheduler:
+        yield None
+        return
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise InputError("--scheduler needs Dask distributed: pip install \"sbcal[dask]\"") from None
+    try:
+        client = Client(scheduler, timeout="5s", set_as_default=False)
+    except (OSError, TimeoutError) as e:
+        raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers ({e})") from None
+    try:
+        yield client.get_executor()
+    finally:
+        client.close()
+
+
+def _quiet_threads():
+    os.environ["OMP_NUM_THREADS"] = "1"
+
+
+def _map(executor, fn, jobs, label):
+    """``fn`` over ``jobs`` (in ``executor`` or here), results in job order, a progress bar over jobs."""
+    out = []
+    with progress_bar(label, total=len(jobs), unit="job") as bar:
+        if executor is None:
+            for j in jobs:
+                out.append(fn(j))
+                bar.update(1)
+        else:
+            for r in executor.map(fn, jobs):
+                out.append(r)
+                bar.update(1)
+    return out
+
+
+# --- stages --------------------------------------------------------------------------------
+
+def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict, str]:
+    """Stage 1: per-test cleaning and quality of one damper -> ``<store>/<damper>/data.json``.
+
+    Returns ``(doc, status)``.
+    """
+    path = Path(store) / damper.name / "data.json"
+    inputs = {"bench_rows": rows_digest(bench, damper.name), "settings": {"z_threshold": settings.z_threshold},
+              "sbcal": _version()}
+    stored = _read_json(path)
+    why = changed(stored, inputs)
+    if not why:
+        return stored, "reused"
+    summary = bench_summary(_only(bench, damper.name), settings.z_threshold)[damper.name]
+    quality = {}
+    for label in summary:
+        q = quality_table(bench.test(damper.name, label))
+        quality[label] = {c: q[c].tolist() for c in ("frequency_hz", "magnitude_cv", "phase_cv")}
+    doc = {"damper": damper.name, "bench": str(bench.source), "tests": summary, "quality": quality, "inputs": inputs}
+    write_json(path, doc, indent=1)
+    return doc, f"redone ({_why(why)})"
+
+
+def _only(bench, damper: str):
+    """The bench restricted to one damper (a summary of its rows only)."""
+    from .bench import BenchData
+
+    return BenchData(source=bench.source, frame=bench.frame[bench.frame["damper"] == damper].reset_index(drop=True))
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        return None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{path}: not valid JSON ({e.msg}, line {e.lineno})") from None
+
+
+def sample_inputs(bench, damper: Damper, test: str, settings: Settings) -> dict:
+    """What a test's posterior is made from (stored as its ``inputs``)."""
+    sampler = {k: v for k, v in asdict(settings.sampler).items() if k != "workers"}
+    return {"bench_rows": rows_digest(bench, damper.name, test), "damper": _damper_digest(damper),
+            "priors": file_digest(settings.priors), "paramset": settings.paramset,
+            "settings": {"sampler": sampler, "z_threshold": settings.z_threshold},
+            "seed": settings.seed, "sbcal": _version()}
+
+
+def _sample_job(job):
+    damper, bench, test, store, settings, inputs, command = job
+    from .calibrate import calibrate_test
+
+    return calibrate_test(damper, bench, test, paramset=settings.paramset, seed=settings.seed, out=store,
+                          config=replace(settings.sampler, workers=1), prior_path=settings.priors,
+                          z_threshold=settings.z_threshold, progress=False, command=command, inputs=inputs)
+
+
+def sample_tests(bench, work, store, settings: Settings, *, executor=None, command: str = "", reuse: bool = True,
+                 progress: bool = True) -> dict:
+    """Stage 2: the posterior of every ``(damper, test)`` in ``work`` (reused where fresh).
+
+    Jobs run in ``executor`` (a cluster), else in ``settings.workers`` local processes. Returns
+    ``{(damper name, test): (summary, status)}``.
+    """
+    from .runs import read_summary, run_dir
+
+    out, jobs = {}, []
+    for damper, t in work:
+        inputs = sample_inputs(bench, damper, t, settings)
+        stored = read_summary(run_dir(store, damper.name, t, settings.paramset))
+        why = changed(stored, inputs)
+        if reuse and not why:
+            out[damper.name, t] = (stored, "reused")
+        else:
+            jobs.append((damper, bench, t, store, settings, inputs, command))
+            out[damper.name, t] = (None, f"redone ({_why(why)})" if reuse else "sampled")
+    label = f"sampling {len(jobs)} test(s)" if progress and jobs else None
+    if executor is None and settings.workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=settings.workers, initializer=_quiet_threads) as pool:
+            done = _map(pool, _sample_job, jobs, label)
+    else:
+        done = _map(executor, _sample_job, jobs, label)
+    for job, summary in zip(jobs, done):
+        key = (job[0].name, job[2])
+        out[key] = (summary, out[key][1])
+    return out
+
+
+def diagnose_inputs(bench, damper: Damper, settings: Settings) -> dict:
+    """What a damper's diagnosis is made from (stored as its ``inputs``)."""
+    diag = {k: v for k, v in asdict(settings.diagnose).items() if k != "workers"}
+    return {"bench_rows": rows_digest(bench, damper.name), "damper": _damper_digest(damper),
+            "priors": {"default": file_digest(settings.priors), "extensions": file_digest(None, "extensions.toml")},
+            "settings": diag, "seed": settings.seed, "sbcal": _version()}
+
+
+def _diagnose_job(job):
+    bench, damper, store, settings, inputs, command, progress = job
+    from .diagnose import diagnose
+
+    doc = diagnose(damper, bench, seed=settings.seed, config=settings.diagnose, progress=progress,
+                   prior_path=settings.priors)
+    doc["command"] = command
+    doc["inputs"] = inputs
+    write_json(Path(store) / damper.name / "diagnose.json", doc, indent=1)
+    return doc
+
+
+def diagnose_dampers(bench, dampers, store, settings: Settings, *, executor=None, command: str = "",
+                     reuse: bool = True, progress: bool = True) -> dict:
+    """Stage 3: the diagnosis of every damper (reused where fresh) -> ``<store>/<damper>/diagnose.json``.
+
+    Locally a diagnosis runs its fits in ``settings.diagnose.workers`` processes; on a cluster each
+    damper's diagnosis is one job. Returns ``{damper name: (doc, status)}``.
+    """
+    out, jobs = {}, []
+    for damper in dampers:
+        inputs = diagnose_inputs(bench, damper, settings)
+        stored = _read_json(Path(store) / damper.name / "diagnose.json")
+        why = changed(stored, inputs)
+        if reuse and not why:
+            out[damper.name] = (stored, "reused")
+        else:
+            out[damper.name] = (None, f"redone ({_why(why)})" if reuse else "diagnosed")
+            jobs.append((bench, damper, store, settings, inputs, command, progress and executor is None))
+    if executor is not None:
+        jobs = [(b, d, st, replace(se, diagnose=replace(se.diagnose, workers=1)), i, c, p)
+                for b, d, st, se, i, c, p in jobs]
+    for job, doc in zip(jobs, _map(executor, _diagnose_job, jobs, None)):
+        out[job[1].name] = (doc, out[job[1].name][1])
+    return out
+
+
+def map_damper(store, damper: str, settings: Settings, *, include_oiled: bool = False,
+               reuse: bool = True) -> tuple[dict | None, str]:
+    """Stage 4: the amplitude map of one damper from its stored posteriors -> ``map.json`` + ``map.nc``.
+
+    Returns ``(doc, status)``; ``doc`` is None when the damper has no tests at 3 or more amplitudes.
+    """
+    from .amplitude import map_from_store
+
+    return map_from_store(store, damper, settings.paramset, seed=settings.seed, include_oiled=include_oiled,
+                          reuse=reuse)
+
+
+def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None, command: str = "",
+        progress: bool = True, say=print) -> Path:
+    """The whole job for ``dampers``, stage after stage, reusing what is fresh; returns the report path.
+
+    ``say`` gets one line per stage, damper and test: reused or redone, and why.
+    """
+    from .report import build_report
+
+    for damper in dampers:
+        _, status = clean_damper(bench, damper, store, settings)
+        say(f"{damper.name}: clean: {status}")
+    work = [(d, t) for d in dampers for t in bench.tests(d.name)]
+    for (name, t), (summary, status) in sample_tests(bench, work, store, settings, executor=executor,
+                                                     command=command, progress=progress).items():
+        flag = "" if summary is None or summary.get("converged") else f"; NOT CONVERGED ({summary.get('reason')})"
+        say(f"{name}: sample {t}: {status}{flag}")
+    for name, (doc, status) in diagnose_dampers(bench, dampers, store, settings, executor=executor,
+                                                command=command, progress=progress).items():
+        say(f"{name}: diagnose: {status}; verdict {doc['verdict']}")
+    for damper in dampers:
+        doc, status = map_damper(store, damper.name, settings)
+        say(f"{damper.name}: map: {status}" + ("" if doc is None else f"; preferred {doc['preferred']}"
+                                                + ("" if doc["converged"] else "; NOT CONVERGED")))
+    index = build_report(store, report_dir, paramset=settings.paramset, command=command)
+    say(f"report: {index}")
+    return index

@@ -1,0 +1,82 @@
+"""The sampling engine: a known posterior, the convergence policy, reproducibility, one emcee user."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sbcal.priors import Prior
+from sbcal.sampler import POLICY, SamplerConfig, sample
+
+MEAN = np.array([1.0, -2.0, 0.5])
+COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, -0.3], [0.0, -0.3, 0.5]])
+
+
+class Gaussian:
+    """A correlated 3-D normal (wide box prior), with a pointwise 'likelihood' of 2 points."""
+
+    def __init__(self):
+        self.prior = Prior.from_boxes("gauss", {n: (False, -20.0, 20.0) for n in ("a", "b", "c")})
+        self.prec = np.linalg.inv(COV)
+
+    def pointwise_log_likelihood(self, params):
+        x = np.column_stack([params[n] for n in ("a", "b", "c")]) - MEAN
+        q = np.einsum("ni,ij,nj->n", x, self.prec, x)
+        return np.column_stack([-0.25 * q, -0.25 * q])
+
+    def __call__(self, z):
+        z = np.atleast_2d(z)
+        out = self.prior.log_prob(z)
+        ok = np.isfinite(out)
+        out[ok] = self.pointwise_log_likelihood(self.prior.params(z[ok])).sum(axis=1)
+        return out
+
+
+FAST = SamplerConfig(nwalkers=16, max_draws=500, de_population=30, de_generations=60, workers=1)
+
+
+def test_known_gaussian_moments_and_diagnostics():
+    res = sample(Gaussian(), seed=11, config=FAST)
+    assert res.converged and res.reason == ""
+    assert res.n_chains == 4 and res.log_likelihood.shape[:2] == res.log_prob.shape
+    x = np.column_stack([res.draws[n].ravel() for n in ("a", "b", "c")])
+    # the mean's error is sd / sqrt(ESS); 5 of those is a ~1e-6 two-sided tail
+    for i, n in enumerate(("a", "b", "c")):
+        assert abs(x[:, i].mean() - MEAN[i]) < 5 * np.sqrt(COV[i, i] / res.ess_bulk[n])
+    # the covariance: relative error of a variance ~ sqrt(2 / ESS) (< 0.05 here); allow 0.15 absolute
+    np.testing.assert_allclose(np.cov(x.T), COV, atol=0.15)
+    for n in res.names:
+        assert res.r_hat[n] <= POLICY["rhat_max"] and min(res.ess_bulk[n], res.ess_tail[n]) >= POLICY["ess_min"]
+        assert res.n_steps - res.burn >= POLICY["tau_factor"] * res.tau[n]
+
+
+def test_same_seed_same_draws_whatever_the_workers():
+    a = sample(Gaussian(), seed=5, config=FAST)
+    b = sample(Gaussian(), seed=5, config=SamplerConfig(**{**FAST.__dict__, "workers": 2}))
+    c = sample(Gaussian(), seed=6, config=FAST)
+    for n in a.names:
+        np.testing.assert_array_equal(a.draws[n], b.draws[n])
+    assert not np.array_equal(a.draws["a"], c.draws["a"])
+
+
+def test_step_cap_marks_not_converged_with_the_reason():
+    res = sample(Gaussian(), seed=1, config=SamplerConfig(nwalkers=16, first_steps=60, max_steps=60, workers=1))
+    assert not res.converged
+    assert res.reason.startswith("stopped at the 60-step cap") and "tau" in res.reason
+    d = res.convergence_dict()
+    assert d["converged"] is False and d["reason"] == res.reason and "R-hat <= 1.01" in d["policy"]
+
+
+def test_policy_is_enforced_by_the_configuration():
+    with pytest.raises(ValueError, match="n_ensembles 2"):
+        SamplerConfig(n_ensembles=2)
+    with pytest.raises(ValueError, match="tau_reason"):
+        SamplerConfig(tau_factor=20)
+    loose = SamplerConfig(tau_factor=30, tau_reason="a test of the wording")
+    assert "30 tau because a test of the wording" in loose.policy()
+
+
+def test_emcee_has_one_user():
+    root = Path(__file__).resolve().parents[1] / "sbcal"
+    users = sorted(p.name for p in root.rglob("*.py") if "import emcee" in p.read_text())
+    assert users == ["sampler.py"]
