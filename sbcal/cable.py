@@ -29,7 +29,7 @@ re-solved in sweep order from their predecessors and flagged (:attr:`CableState.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,7 +39,7 @@ from .hysteresis import HysteresisLaw
 
 __all__ = ["DEFAULT_N_ELEMENTS", "CableState", "CableModel", "segments_from_frequencies"]
 
-DEFAULT_N_ELEMENTS = 4
+DEFAULT_N_ELEMENTS = 6
 """Elements per arm of the fit's model (the convergence study of ``docs/cable.md``)."""
 
 _GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
@@ -442,7 +442,8 @@ class CableModel:
 
     # --- public -------------------------------------------------------------------------------
 
-    def state(self, damper: Damper, freq_hz, amplitude_mm_pp, *, segments=None, **params) -> CableState:
+    def state(self, damper: Damper, freq_hz, amplitude_mm_pp, *, segments=None, linear_rigidity=None,
+              **params) -> CableState:
         """Steady state of the cable at every line, following a stepped-sine sweep up each test.
 
         Parameters
@@ -456,6 +457,9 @@ class CableModel:
         segments : array_like of int, shape (n_freq,), optional
             Test index per line (the sweep restarts at each test's first line); default: a new test
             wherever the frequency does not increase (:func:`segments_from_frequencies`).
+        linear_rigidity : array_like of complex, shape (n_sets or 1, n_freq or 1, 2), optional
+            ``EJ_min (1 + i beta_material)`` per set, line and arm [N m^2], replacing ``EJ_min`` and
+            ``beta_material`` (the virtual bench's asymmetric, viscous or frequency-dependent cable).
         **params : float or array_like, shape (n_sets,)
             See the class docstring.
 
@@ -463,11 +467,20 @@ class CableModel:
         -------
         CableState
         """
+        if linear_rigidity is not None:
+            params = dict(params, EJ_min=1.0, beta_material=0.0)  # placeholders, replaced below
         p, n_sets = self._resolve(damper, params)
         valid = np.broadcast_to((p["EJ_min"] > 0) & (p["beta_material"] >= 0), (n_sets,))
         if self.law is not None:
             valid = valid & np.broadcast_to(self.law.valid(**{k: p[k] for k in self.law.parameter_names}), (n_sets,))
+        if linear_rigidity is not None:
+            lin = np.asarray(linear_rigidity, dtype=complex)
+            if lin.ndim != 3 or lin.shape[2] != 2:
+                raise InputError(f"linear_rigidity: expected shape (n_sets, n_freq, 2), got {lin.shape}")
+            n_sets = max(n_sets, lin.shape[0])
         if not valid.all():
+            if linear_rigidity is not None:
+                raise InputError("linear_rigidity: the law's parameters are outside its domain")
             return self._with_invalid(damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid)
         f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
         if f.ndim != 1 or not np.all(np.isfinite(f) & (f > 0)):
@@ -481,6 +494,8 @@ class CableModel:
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
         c = self._batch(p, n_sets, omega, x0)
+        if linear_rigidity is not None:
+            c = replace(c, linear=np.broadcast_to(lin, (n_sets, f.size, 2)).reshape(-1).copy())
         n, nf = int(self.n_elements), f.size
 
         # 1. all lines at once, from the stuck cable's linear response

@@ -394,7 +394,8 @@ class LognormalIwanLaw(HysteresisLaw):
         vc = np.clip(v, v_lo, v_hi)
         out = spline_re(vc) + 1j * spline_im(vc)
         # gross slip beyond the table: lognormal moments E[(phi / chi_a)^k] = exp(-k v + k^2 s^2 / 2)
-        m1, m15, m2 = (np.exp(-k * v + 0.5 * (k * s) ** 2) for k in (1.0, 1.5, 2.0))
+        vg = np.maximum(v, v_hi)
+        m1, m15, m2 = (np.exp(-k * vg + 0.5 * (k * s) ** 2) for k in (1.0, 1.5, 2.0))
         gross = 16 * m15 / (3 * np.pi) + 1j * 4 * (m1 - m2) / np.pi
         out = np.where(v > v_hi, gross, np.where(v < v_lo, 1.0 + 0j, out))
         return delta_EJ * out
