@@ -9,8 +9,8 @@ model leaves out (``shared/notes/model.md``, "Physics the linear model leaves ou
 ==============================  =============================  ==========================================
 id                              VALUE                          equation
 ==============================  =============================  ==========================================
-``strand_slip``                 ``CHI0`` [1/m] or              per arm, per line: ``EJ_e, beta_e`` from the
-                                ``key:value,...`` (SlipLaw)    curvature amplitude (fixed point, below)
+``strand_slip``                 ``chi_median`` [1/m] or        the distributed cable with a hysteresis law
+                                ``key:value,...`` (SlipLaw)    (below)
 ``fixture_mass``                ``m_f`` [kg]                   ``f_meas = f - omega^2 m_f``
 ``sensor_delay``                ``tau`` [s]                    ``f_meas = f exp(-i omega tau)``
 ``viscous_damping``             ``f_ref`` [Hz]                 ``beta_e(omega) = beta_e f / f_ref``
@@ -25,27 +25,11 @@ measurement noise largest at 4-15 Hz, occasional outlier runs, and the thesis's 
 ``2-1``'s amplitude step at 10 Hz. Every random draw comes from the caller's
 :class:`numpy.random.Generator`: the same seed gives the same frame, byte for byte once written.
 
-Strand slip (:class:`SlipLaw`): at curvature amplitude ``chi_a``, ``u = chi_a / chi0``, a length
-of cable has the secant rigidity and the friction energy per cycle and unit length::
-
-    EJ(u) = EJ_min + (EJ_max - EJ_min) S(u),      S(u) = (tanh(u^n) / u^n)^(p / n)
-    D(u)  = 4 eta (EJ_max - EJ_min) chi0^2 (u - u S(u)) u^m
-
-``n = p = eta = 1, m = 0`` is the steady-cycle Bouc-Wen/Masing equivalent linearisation of the
-notes; the sharpness ``n``, decay ``p``, loss amplitude ``eta`` and loss exponent ``m`` give the
-bench a law of its own. Each arm is one element, so it gets one rigidity per line: the
-strain-energy-weighted secant over the element's (linear) curvature distribution, and the loss
-factor dissipated energy / (2 pi peak strain energy), both by 5-point Gauss-Legendre quadrature
-along the arm::
-
-    EJ_e   = sum_k w_k EJ(u_k) chi_k^2 / sum_k w_k chi_k^2
-    beta_e = beta_material + sum_k w_k D(u_k) / (pi EJ_e sum_k w_k chi_k^2)
-
-The curvatures come from the arm's response to the clamp motion ``X_B = X0 (1, r)``,
-``X0 = amplitude_mm_pp / 2 * 1e-3`` m, ``X_F = -Z_FF^-1 Z_FB X_B`` (:class:`sbcal.fem.ArmKernel`),
-and depend on ``EJ_e, beta_e``: a fixed point per arm and line, solved by damped Newton along an
-amplitude ramp with a bracketing fallback (:func:`solve_strand_slip`), vectorised over runs, lines
-and arms.
+Strand slip (:class:`SlipLaw`): the cable is the distributed model of :mod:`sbcal.cable` (each arm
+split into Hermite elements, each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``
+from a hysteresis law of :mod:`sbcal.hysteresis`: by default the bench's own lognormal Iwan law,
+outside both fitted families), driven at ``X0 = amplitude_mm_pp / 2 * 1e-3`` m and followed up the
+frequency grid as a stepped-sine controller does (``docs/virtual_bench.md``, ``docs/cable.md``).
 """
 
 from __future__ import annotations
@@ -339,7 +323,7 @@ class BenchConfig:
     ej_scatter, beta_scatter, offset_scatter, chi0_scatter : float
         Re-clamping scatter of one run: relative standard deviations of a lognormal factor on EJ
         (and ``EJ_max``), on the loss factors, on ``a1`` and ``a2`` (independently), and on the
-        slip curvature ``chi0``. Drawn once per run, so correlated across all its lines.
+        slip law's curvature scale. Drawn once per run, so correlated across all its lines.
     logmag_noise : tuple of float
         Standard deviation of the measurement noise on ``ln |f|`` at low and at high frequency.
     phase_noise_deg : tuple of float
@@ -539,7 +523,7 @@ def record(damper: Damper, config: BenchConfig, tests=DEFAULT_TESTS, *, rng: np.
     Per test, in this order (all draws from ``rng``, so a seed fixes the frame):
 
     1. re-clamping scatter, one draw per run (hence correlated over its lines): lognormal factors
-       on EJ (and ``EJ_max``), on the loss factors and on ``chi0``; normal factors
+       on EJ (and ``delta_EJ``), on the loss factors and on the slip law's curvature scale; normal factors
        ``1 + N(0, offset_scatter)`` on ``a1`` and on ``a2``;
     2. the noise-free reading of every run (:func:`response`) at the test's amplitude per line;
     3. measurement noise, independent per line: ``N(0, sigma(f))`` on ``ln |f|`` and on the phase,
