@@ -1,34 +1,40 @@
 """The distributed cable: one hysteretic strand-slip law along both arms (``docs/cable.md``).
 
-The damper of :mod:`sbcal.fem` with each arm split into ``N`` Euler-Bernoulli Hermite elements
-(optionally graded towards the clamp). Element ``e`` has its own curvature amplitude ``chi_e`` (the
-rms over the element of the Hermite curvature, linear along it) and its own complex secant rigidity::
+Each section of the messenger cable has the complex secant rigidity::
 
-    EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)
+    EJ*(chi_a) = EJ_min (1 + i beta_material) + EJ_slip*(chi_a)
 
-with ``EJ_slip*`` the first-harmonic describing function of a law of :mod:`sbcal.hysteresis`
-(equivalent linearisation). Consistent cable mass, lumped end masses ``[[m, m a], [m a, J + m a^2]]``,
-the clamp driven at ``X0 = amplitude_mm_pp / 2 * 1e-3`` m (and rotated by ``r X0`` with base rocking),
-the clamp's own inertia added; ``f_uu`` is the vertical force on the base per unit vertical base
-motion, as :func:`sbcal.fem.dynamic_stiffness` defines it.
+with ``EJ_slip*`` the first-harmonic describing function of a law of :mod:`sbcal.hysteresis` at the
+section's curvature amplitude (equivalent linearisation). The damper is that of :mod:`sbcal.fem`:
+lumped end masses ``[[m, m a], [m a, J + m a^2]]``, consistent cable mass, the clamp driven at
+``X0 = amplitude_mm_pp / 2 * 1e-3`` m (and rotated by ``r X0`` with base rocking), the clamp's own
+inertia added; ``f_uu`` is the vertical force on the base per unit vertical base motion, as
+:func:`sbcal.fem.dynamic_stiffness` defines it. Two models:
 
-Each arm is a chain of nodes 0 (the clamp, prescribed) .. N (the end mass), oriented from the clamp
-outward (arm 1's rotations and offset change sign: ``s = L1 - y``). With the clamp prescribed the
-arms are independent, and so are the frequency lines: every (set, line, arm) is an N-unknown fixed
-point ``chi = T(chi)`` (curvatures -> rigidities -> response -> curvatures), solved by Newton in
-``ln chi`` with the exact Jacobian (the response's sensitivity to each element's rigidity reuses
-the factorisation of the arm's block-tridiagonal dynamic stiffness, a batched 2x2-block sweep from
-the end mass to the clamp), all sets, lines and arms at once.
+:class:`CableModel` (the fit's model: fast)
+    Each arm is a statically determinate cantilever from the clamp to its mass node: its bending
+    moment is linear, ``M(s) = V (L - s) + M_tip``, set by the generalised load ``P = (V, M_tip)``
+    at the node. The node's motion relative to the clamp's rigid motion is the flexibility
+    integral ``int l(s) chi(s) ds``, ``l = (L - s, 1)``, evaluated by Gauss-Legendre over
+    ``sections`` sections, each section's curvature amplitude solving ``a |EJ*(a)| = |M|``
+    (looked up in a per-set table of the compliance ``1 / EJ*`` over ``ln |M|^2``). The cable's
+    inertia is the consistent (Hermite) mass of the arm, as in the 6-DOF model, so a linear cable
+    is that model exactly. Unknowns: ``P`` per (set, line, arm), solved by Newton with the exact
+    widely linear Jacobian (``|M|`` is not analytic in ``P``).
 
-Continuation, as a stepped-sine controller sweeps up the grid: the answer at a line is the steady
-state reached from the previous line's state. All lines are solved at once from the stuck cable,
-then one vectorised pass restarts every line from its predecessor's solution; where the two differ
-the line has two steady states (a fold: the response jumps somewhere near it), those lines are
-re-solved in sweep order from their predecessors and flagged (:attr:`CableState.fold`).
+:class:`ElementCableModel` (the virtual bench's: richer)
+    Each arm split into ``N`` Hermite elements with distributed consistent mass, one rigidity per
+    element at its rms curvature; Newton on the element curvatures.
+
+With the clamp prescribed, every (set, line, arm) is independent. Both models can follow a
+stepped-sine sweep up the grid (continuation): a line's answer is the steady state reached from the
+previous line's; where a line has two steady states (a fold) it is flagged.
 """
 
 from __future__ import annotations
 
+import math
+import threading
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -37,20 +43,816 @@ from .damper import Damper
 from .errors import InputError
 from .hysteresis import HysteresisLaw
 
-__all__ = ["DEFAULT_N_ELEMENTS", "CableState", "CableModel", "segments_from_frequencies"]
+__all__ = [
+    "DEFAULT_SECTIONS",
+    "DEFAULT_N_ELEMENTS",
+    "CableState",
+    "CableModel",
+    "ElementCableState",
+    "ElementCableModel",
+    "segments_from_frequencies",
+]
+
+DEFAULT_SECTIONS = 8
+"""Gauss-Legendre sections per arm of :class:`CableModel` (the convergence study of ``docs/cable.md``)."""
 
 DEFAULT_N_ELEMENTS = 6
-"""Elements per arm of the fit's model (the convergence study of ``docs/cable.md``)."""
+"""Elements per arm of :class:`ElementCableModel` (the convergence study of ``docs/cable.md``)."""
 
 _GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
 _BASE = ("EJ_min", "beta_material", "rocking_rad_per_m")
 _FD_LOG_STEP = 1e-6  # forward-difference step of the law's slope in ln chi
-_MAX_LOG_STEP = 2.0  # Newton step cap in ln chi (a factor e^2 per iteration)
+_MAX_LOG_STEP = 2.0  # element model: Newton step cap in ln chi (a factor e^2 per iteration)
 _TINY = 1e-300
+_STEP_CAP = 0.5  # fast model: a Newton step is at most this fraction of |P|
+_START_STEPS = 10  # fast model: relaxed steps of the one-compliance start
+_START_RELAX = 0.3
+# curvatures [1/m] scanned for the law's transition (where the slip part has lost half its stuck
+# value); the compliance table spans ``table_decades`` either side of it
+_SCAN = 10.0 ** np.arange(-9.0, 3.01, 1.0 / 3.0)
+
+
+def segments_from_frequencies(freq_hz) -> np.ndarray:
+    """Test index per line, a new test starting wherever the frequency does not increase.
+
+    Returns
+    -------
+    ndarray of int, shape (n_freq,)
+    """
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    return np.concatenate([[0], np.cumsum(np.diff(f) <= 0)]).astype(int)
+
+
+def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
+    """Check names and shapes; every parameter as a 1-D array (length n_sets or 1), defaults filled."""
+    unknown = sorted(set(params) - set(names))
+    if unknown:
+        raise InputError(f"unknown parameter {unknown[0]!r}; known: {', '.join(names)}")
+    for name in required:
+        if name not in params:
+            raise InputError(f"parameter {name!r} is required")
+    n_sets, out = 1, {}
+    for name, value in params.items():
+        a = np.asarray(value, dtype=float)
+        if a.ndim > 1 or (a.ndim == 1 and n_sets not in (1, a.size) and a.size != 1):
+            raise InputError(f"parameter {name!r}: expected a scalar or shape (n_sets,), got shape {a.shape}")
+        n_sets = max(n_sets, a.size) if a.ndim == 1 else n_sets
+        out[name] = a.reshape(-1)
+    for name in _GEOMETRY:
+        out.setdefault(name, np.array([getattr(damper, name)]))
+    out.setdefault("rocking_rad_per_m", np.zeros(1))
+    return out, n_sets
+
+
+def _grid(freq_hz, amplitude_mm_pp, segments):
+    """Validated frequencies [Hz], amplitudes [mm p-p] and test segments, each shape (n_freq,)."""
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    if f.ndim != 1 or not np.all(np.isfinite(f) & (f > 0)):
+        raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
+    amp = np.asarray(amplitude_mm_pp, dtype=float)
+    if amp.ndim > 1 or amp.size not in (1, f.size):
+        raise InputError(f"amplitude_mm_pp: expected a scalar or shape ({f.size},), got shape {amp.shape}")
+    amp = np.broadcast_to(amp.reshape(-1), f.shape)
+    if not np.all(np.isfinite(amp) & (amp > 0)):
+        raise InputError("amplitude_mm_pp: expected finite amplitudes > 0 [mm p-p], scalar or shape (n_freq,)")
+    seg = segments_from_frequencies(f) if segments is None else np.asarray(segments)
+    if seg.shape != f.shape:
+        raise InputError(f"segments: expected shape {f.shape}, got {seg.shape}")
+    return f, amp, seg
+
+
+# --- the fast model: statically determinate arms ---------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class _Compliance:
+    """Section compliance ``K = 1 / EJ*(a(m))`` per parameter set, over ``y = ln m^2`` (m = |M| [N m]).
+
+    A uniform grid ``y_j = y0 + j / inv_h`` (j = 0 .. n - 1) per set; on each interval ``K`` is the
+    cubic Hermite interpolant of the nodes' ``K`` and ``dK/dy``, stored as power coefficients in the
+    interval's local ``t in [0, 1]``. Beyond the grid, ``K -> k_ref + (K_end - k_ref) exp(p (y - y_end))``
+    with ``k_ref`` the stuck (below) or fully slipped (above) compliance and ``p`` matching the end
+    node's slope (value and slope continuous).
+
+    Attributes
+    ----------
+    coef : ndarray, shape (8, n_sets * (n - 1))
+        Per interval ``Re c0..c3, Im c0..c3`` of ``K(t) = c0 + c1 t + c2 t^2 + c3 t^3``.
+    y0, inv_h : ndarray, shape (n_sets,)
+    n : int
+    ends : ndarray of complex, shape (n_sets, 2)
+        ``K`` at the first and last node.
+    refs : ndarray of complex, shape (n_sets, 2)
+        Stuck and fully slipped compliance.
+    rates : ndarray of complex, shape (n_sets, 2)
+        Tail exponents ``p`` [per unit y] below and above.
+    monotone : ndarray of bool, shape (n_sets,)
+        ``a |EJ*(a)|`` increases over the table (the section inversion is unique).
+    """
+
+    coef: np.ndarray
+    y0: np.ndarray
+    inv_h: np.ndarray
+    n: int
+    ends: np.ndarray
+    refs: np.ndarray
+    rates: np.ndarray
+    monotone: np.ndarray
+
+
+def _linear_compliance(lin) -> _Compliance:
+    """The table of a linear cable: ``K = 1 / lin`` everywhere (one interval, no slope)."""
+    k = 1.0 / lin
+    coef = np.zeros((8, lin.size))
+    coef[0], coef[4] = k.real, k.imag
+    both = np.stack([k, k], axis=1)
+    # one interval over every representable |M|^2 (ln of a double lies within +-745)
+    return _Compliance(coef=coef, y0=np.full(lin.size, -2000.0), inv_h=np.full(lin.size, 1 / 4000), n=2,
+                       ends=both, refs=both,
+                       rates=np.zeros((lin.size, 2), dtype=complex), monotone=np.ones(lin.size, dtype=bool))
+
+
+def _rigidity_and_slope(law, lp, lin, u):
+    """``EJ*`` at curvature ``e^u`` and its forward-difference slope ``dEJ*/du``; u (n_sets, k)."""
+    e = lin[:, None] + law.slip_rigidity(np.exp(u), **lp)
+    e2 = lin[:, None] + law.slip_rigidity(np.exp(u + _FD_LOG_STEP), **lp)
+    return e, (e2 - e) / _FD_LOG_STEP
+
+
+def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float) -> _Compliance:
+    """Tabulate ``K(y)`` for each parameter set: invert ``y = ln(a^2 |EJ*(a)|^2)`` on a uniform y grid.
+
+    ``lp``: the law's parameters, each (n_sets, 1); ``lin = EJ_min (1 + i beta_material)`` (n_sets,).
+    Four law evaluations of ``n`` curvatures per set (plus one coarse scan): a grid uniform in
+    ``u = ln a`` with slopes, inverted by cubic Hermite interpolation of ``u(y)``, then ``K`` and
+    its slope at those curvatures, moved to the uniform nodes by one Taylor step (the residual
+    ``y(u) - y_j`` is ~1e-6, its square negligible).
+    """
+    s = lin.size
+    rows = np.arange(s)
+    stuck = law.slip_rigidity(np.zeros((s, 1)), **lp)[:, 0]
+    ratio = np.abs(law.slip_rigidity(_SCAN[None, :], **lp)) / np.maximum(np.abs(stuck), _TINY)[:, None]
+    below = ratio < 0.5
+    k = np.where(below.any(axis=1), below.argmax(axis=1), _SCAN.size // 2).clip(1, _SCAN.size - 1)
+    r0, r1 = ratio[rows, k - 1], ratio[rows, k]
+    frac = np.clip((r0 - 0.5) / np.maximum(r0 - r1, _TINY), 0.0, 1.0)
+    u_mid = np.log(_SCAN[k - 1]) + frac * np.log(_SCAN[1] / _SCAN[0])
+
+    span = decades * np.log(10.0)
+    u_pre = u_mid[:, None] + np.linspace(-span, span, n)[None, :]
+    e, de = _rigidity_and_slope(law, lp, lin, u_pre)
+    y_pre = 2.0 * (u_pre + np.log(np.abs(e)))
+    dy_du = 2.0 * (1.0 + (de / e).real)
+    monotone = np.all(dy_du > 0, axis=1) & np.all(np.diff(y_pre, axis=1) > 0, axis=1)
+    dy_du = np.where(dy_du > 0, dy_du, 1.0)
+    y0, y1 = y_pre[:, 0], y_pre[:, -1]
+    h = (y1 - y0) / (n - 1)
+    y_t = y0[:, None] + h[:, None] * np.arange(n)[None, :]
+    # interval of each target among the pre-grid's nodes: one search over all rows (row offsets)
+    z = (y_pre - y0[:, None]) / (y1 - y0)[:, None] + 2.0 * rows[:, None]
+    zt = np.linspace(0.0, 1.0, n)[None, :] + 2.0 * rows[:, None]
+    idx = np.searchsorted(z.ravel(), zt.ravel(), side="right").reshape(s, n) - 1 - n * rows[:, None]
+    idx = idx.clip(0, n - 2)
+    ya, yb = np.take_along_axis(y_pre, idx, 1), np.take_along_axis(y_pre, idx + 1, 1)
+    ua, ub = np.take_along_axis(u_pre, idx, 1), np.take_along_axis(u_pre, idx + 1, 1)
+    hy = np.where(yb > ya, yb - ya, 1.0)
+    ga, gb = 1.0 / np.take_along_axis(dy_du, idx, 1), 1.0 / np.take_along_axis(dy_du, idx + 1, 1)
+    t = np.clip((y_t - ya) / hy, 0.0, 1.0)
+    t2, t3 = t * t, t * t * t
+    u = (ua * (2 * t3 - 3 * t2 + 1) + ub * (3 * t2 - 2 * t3)
+         + hy * (ga * (t3 - 2 * t2 + t) + gb * (t3 - t2)))
+
+    e, de = _rigidity_and_slope(law, lp, lin, u)
+    kk = 1.0 / e
+    dk_dy = -de / (e * e) / (2.0 * (1.0 + (de / e).real))
+    kk = kk - dk_dy * (2.0 * (u + np.log(np.abs(e))) - y_t)  # onto the uniform node
+    ka, kb, da, db = kk[:, :-1], kk[:, 1:], h[:, None] * dk_dy[:, :-1], h[:, None] * dk_dy[:, 1:]
+    c = np.stack([ka, da, 3 * (kb - ka) - 2 * da - db, 2 * (ka - kb) + da + db], axis=-1)
+    coef = np.ascontiguousarray(np.concatenate([c.real, c.imag], axis=-1).reshape(-1, 8).T)
+    refs = np.stack([1.0 / (lin + stuck), 1.0 / lin], axis=1)
+    ends = kk[:, [0, -1]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rates = dk_dy[:, [0, -1]] / (ends - refs)
+    # a tail must decay towards its limit; otherwise hold the end value
+    ok = np.isfinite(rates) & (np.array([1.0, -1.0]) * rates.real > 0)
+    rates = np.where(ok, rates, 0.0)
+    return _Compliance(coef=coef, y0=y0, inv_h=1.0 / h, n=n, ends=ends, refs=refs, rates=rates,
+                       monotone=monotone & np.all(np.isfinite(coef.reshape(8, s, -1)), axis=(0, 2)))
+
+
+class _Work:
+    """Scratch arrays of the section arithmetic, kept per thread across calls.
+
+    ``get(name, shape)`` is a contiguous view of the first ``prod(shape)`` elements of the buffer
+    ``name`` (grown when too small, never shrunk). The hot loop writes into memory it already
+    owns: a fresh ~1 MB array costs its page faults, more than the arithmetic done on it, and a
+    sampler calls the model ~10^4 times with the same shapes. Every element read in a call is
+    written earlier in that call, so the results do not depend on the buffers' history.
+    """
+
+    _local = threading.local()
+
+    @classmethod
+    def get(cls, name, shape, dtype=float):
+        buffers = cls._local.__dict__.setdefault("buffers", {})
+        n = math.prod(shape)
+        buf = buffers.get((name, np.dtype(dtype)))
+        if buf is None or buf.size < n:
+            buf = buffers[(name, np.dtype(dtype))] = np.empty(n, dtype=dtype)
+        return buf[:n].reshape(shape)
+
+
+def _lookup(table: _Compliance, m2, row, y0ih, inv_h, out=None, log=True):
+    """Section compliance and its slope from the table.
+
+    ``m2 = |M|^2`` [(N m)^2], shape (..., b); ``row`` (b,) the set of each entry, ``y0ih = y0 inv_h``
+    and ``inv_h`` per entry (``log=False``: ``m2`` is ``ln |M|^2`` already). Returns ``(Kr, Ki, Dr, Di)`` (written into ``out``, four arrays of
+    m2's shape, when given), ``D = dK/dt = dK/dy / inv_h`` (the slope in the table's local
+    coordinate; multiply by ``inv_h`` for ``dK/dy``). Scratch from :class:`_Work`.
+    """
+    n = table.n
+    shape = m2.shape
+    x, t, jf = (_Work.get(name, shape) for name in ("x", "t", "jf"))
+    if log:
+        with np.errstate(divide="ignore"):
+            np.log(m2, out=x)
+        x *= inv_h
+    else:
+        np.multiply(m2, inv_h, out=x)
+    x -= y0ih
+    np.clip(x, 0.0, n - 1 - 1e-9, out=t)
+    np.floor(t, out=jf)
+    t -= jf
+    j = _Work.get("j", shape, np.intp)
+    np.copyto(j, jf, casting="unsafe")
+    j += row * (n - 1)
+    cf = _Work.get("cf", (8,) + shape)
+    np.take(table.coef, j, axis=1, mode="clip", out=cf)  # one contiguous array per coefficient
+    out = tuple(np.empty(shape) for _ in range(4)) if out is None else out
+    tmp = jf
+    for c0, c1, c2, c3, k, d in ((cf[0], cf[1], cf[2], cf[3], out[0], out[2]),
+                                 (cf[4], cf[5], cf[6], cf[7], out[1], out[3])):
+        # Horner in place: h1 = c3 t + c2, h2 = h1 t + c1, K = h2 t + c0; K' = h2 + t (2 h1 - c2)
+        c3 *= t
+        c3 += c2
+        np.multiply(c3, t, out=tmp)
+        c1 += tmp
+        np.multiply(c1, t, out=k)
+        k += c0
+        c3 *= 2.0
+        c3 -= c2
+        c3 *= t
+        np.add(c3, c1, out=d)
+    if x.min() < 0.0 or x.max() > n - 1:
+        _tails(table, x, row, inv_h, out)
+    return out
+
+
+def _tails(table, x, row, inv_h, out):
+    """Beyond the table, in place: ``K = k_ref + (K_end - k_ref) exp(p (y - y_end))``.
+
+    ``x`` (..., b) the table coordinate of each section; ``out`` the four (Kr, Ki, Dr, Di) arrays.
+    """
+    n = table.n
+    where = np.nonzero((x < 0.0) | (x > n - 1))
+    xs = x[where]
+    b = where[-1]
+    r, ih = row[b], inv_h[b]
+    side = (xs > 0).astype(np.intp)
+    ref = table.refs[r, side]
+    gap = table.ends[r, side] - ref
+    rate = table.rates[r, side]
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = gap * np.exp(rate * ((xs - side * (n - 1)) / ih))
+    e = np.where(np.isfinite(e), e, 0.0)
+    k = ref + e
+    d = rate * e / ih
+    for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
+        dst[where] = src
+
+
+def _widely_solve(x, y, r):
+    """Solve ``X d + Y conj(d) = r`` for d (2 complex per entry) by 2x2 complex eliminations.
+
+    ``x, y``: symmetric 2x2 complex matrices as arrays (3, b) of (a00, a01, a11); ``r`` (2, b).
+    Conjugating gives ``conj(d) = conj(X)^-1 (conj(r) - conj(Y) d)``, hence
+    ``(X - W conj(Y)) d = r - W conj(r)`` with ``W = Y conj(X^-1)``. Returns d, (2, b).
+    """
+    x00, x01, x11 = x
+    y00, y01, y11 = y
+    idet = np.conj(1.0 / (x00 * x11 - x01 * x01))
+    i00, i01, i11 = np.conj(x11) * idet, -np.conj(x01) * idet, np.conj(x00) * idet  # conj(X^-1)
+    w00, w01 = y00 * i00 + y01 * i01, y00 * i01 + y01 * i11
+    w10, w11 = y01 * i00 + y11 * i01, y01 * i01 + y11 * i11
+    c00, c01, c11 = np.conj(y)
+    s00, s01 = x00 - (w00 * c00 + w01 * c01), x01 - (w00 * c01 + w01 * c11)
+    s10, s11 = x01 - (w10 * c00 + w11 * c01), x11 - (w10 * c01 + w11 * c11)
+    r0, r1 = r
+    c0, c1 = np.conj(r0), np.conj(r1)
+    v0, v1 = r0 - (w00 * c0 + w01 * c1), r1 - (w10 * c0 + w11 * c1)
+    idet = 1.0 / (s00 * s11 - s01 * s10)
+    return np.stack([(s11 * v0 - s01 * v1) * idet, (s00 * v1 - s10 * v0) * idet])
+
+
+@dataclass(frozen=True, eq=False)
+class _Arms:
+    """Per-(set, line, arm) constants of the statically determinate arms, flattened on one batch axis
+    b = (set * n_freq + line) * 2 + arm; arm-local frame (s from the clamp to the mass node).
+
+    In the scaled unknowns ``p = (V L, M_tip)`` [N m] (the moment ``M = p0 eta + p1``, ``eta = 1 - s/L``)
+    the node's equation (its inertia balancing the load) is ``p = Mm . S(p) + c``, with
+    ``S(p) = sum_q w_q (eta_q, 1) K_q M_q`` the flexibility integral (per unit length: the node's
+    motion relative to the clamp's rigid motion is ``diag(L^2, L) S``). It is solved in the form
+    ``N p - S(p) - N c = 0``, ``N = Mm^-1``; the vertical clamp force is ``fa p0 + fb p1 + fc``.
+    """
+
+    n: np.ndarray  # (3, b): N = Mm^-1 as (n00, n01, n11), Mm = omega^2 L diag(L, 1) M_node diag(L, 1)
+    nc: np.ndarray  # (2, b): N c, c = omega^2 diag(L, 1) (M_node q_rigid + M_node,clamp q_clamp)
+    force: tuple  # (fa, fb, fc) real
+    row: np.ndarray  # table row (parameter set) of each entry, intp
+    inv_h: np.ndarray
+    y0ih: np.ndarray
+    length: np.ndarray  # arm length [m]
+
+    def take(self, idx):
+        """The constants of the entries ``idx``."""
+        return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force), row=self.row[idx], inv_h=self.inv_h[idx],
+                     y0ih=self.y0ih[idx], length=self.length[idx])
+
+
+def _gauss(q: int):
+    """Gauss-Legendre on [0, 1]: eta nodes (from the mass node, eta = 1 - s/L) and weights."""
+    x, w = np.polynomial.legendre.leggauss(q)
+    return 0.5 * (1.0 - x), 0.5 * w
 
 
 @dataclass(frozen=True, eq=False)
 class CableState:
+    """The cable's steady state per parameter set and frequency line (:class:`CableModel`).
+
+    Attributes
+    ----------
+    f_uu : ndarray of complex, shape (n_sets, n_freq)
+        Dynamic stiffness [N/m] (with base rocking: the measured ``f_uu + r f_uphi``).
+    load : ndarray of complex, shape (n_sets, n_freq, 2, 2)
+        ``(V [N], M_tip [N m])`` at each arm's mass node, arm 1 (mass 1 - clamp) then arm 2, in the
+        arm's own frame (s from the clamp to the mass); the moment is ``V (L - s) + M_tip``.
+    curvature : ndarray, shape (n_sets, n_freq, 2, sections)
+        Section curvature amplitudes [1/m] at :attr:`sections`.
+    rigidity : ndarray of complex, shape (n_sets, n_freq, 2, sections)
+        Section secant rigidity ``EJ*`` [N m^2].
+    curvature_range : ndarray, shape (n_sets, n_freq, 2)
+        Smallest and largest curvature amplitude over both arms' full length [1/m] (the largest at
+        an arm's end, the smallest where ``|M|`` is least): the range the law was used over.
+    converged : ndarray of bool, shape (n_sets, n_freq)
+        Newton met the tolerance on both arms.
+    fold : ndarray of bool, shape (n_sets, n_freq)
+        Two steady states were found at this line (with ``continuation``; the sweep's branch is
+        returned). Always False without continuation.
+    residual : ndarray, shape (n_sets, n_freq)
+        Relative size of the last Newton step (max over the arms).
+    iterations : int
+        Newton iterations (the largest per entry), summed over the passes.
+    sections : ndarray, shape (sections,)
+        Section positions from the clamp, as fractions of the arm's length.
+    """
+
+    f_uu: np.ndarray
+    load: np.ndarray
+    curvature: np.ndarray
+    rigidity: np.ndarray
+    curvature_range: np.ndarray
+    converged: np.ndarray
+    fold: np.ndarray
+    residual: np.ndarray
+    iterations: int
+    sections: np.ndarray
+
+
+@dataclass(frozen=True)
+class CableModel:
+    """The strand-slip cable on statically determinate arms: ``f_uu`` and the steady state, fast.
+
+    Parameters (keyword arguments of :meth:`state`; each a scalar or shape (n_sets,)):
+
+    ===================  ======  =============================================================
+    name                 unit    meaning
+    ===================  ======  =============================================================
+    EJ_min               N m^2   rigidity of the fully slipped strand
+    beta_material        1       material loss factor of the strand (on ``EJ_min``)
+    the law's            ...     :attr:`law` ``.parameter_names`` (e.g. ``delta_EJ``, ``chi_dahl``)
+    rocking_rad_per_m    rad/m   base rocking ``phic = r xc`` (default 0)
+    m1 .. mu             SI      geometry overrides as :mod:`sbcal.fem` accepts them
+    ===================  ======  =============================================================
+
+    The law must make ``a |EJ*(a)|`` increase with the curvature amplitude ``a`` (true for
+    ``EJ_min > 0`` and the laws of :mod:`sbcal.hysteresis`): a section's moment then fixes its
+    curvature. Sets where the table finds otherwise, or outside the law's domain, give NaN.
+
+    Attributes
+    ----------
+    law : HysteresisLaw or None
+        The slip part's law; None is the linear cable ``EJ_min (1 + i beta_material)``.
+    sections : int
+        Gauss-Legendre sections per arm.
+    table_points : int
+        Nodes of each set's compliance table (uniform in ``ln |M|``).
+    table_decades : float
+        The table spans this many decades of curvature either side of the law's transition.
+    max_iter : int
+        Newton iteration budget per pass (fixed: the model is a deterministic function).
+    tol : float
+        Converged when the Newton step is below ``tol`` relative to ``|P|`` (the step is then taken:
+        the error left is of order ``tol^2``).
+    fold_tol : float
+        Two solutions of one line are distinct when their loads differ by more than this (relative).
+    """
+
+    law: HysteresisLaw | None = None
+    sections: int = DEFAULT_SECTIONS
+    table_points: int = 96
+    table_decades: float = 3.0
+    max_iter: int = 30
+    tol: float = 1e-8
+    fold_tol: float = 1e-6
+    _rule: tuple = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        if int(self.sections) != self.sections or self.sections < 2:
+            raise InputError(f"sections: expected an integer >= 2, got {self.sections!r}")
+        if int(self.table_points) != self.table_points or self.table_points < 4:
+            raise InputError(f"table_points: expected an integer >= 4, got {self.table_points!r}")
+        if not (np.isfinite(self.table_decades) and self.table_decades > 0):
+            raise InputError(f"table_decades: expected a finite value > 0, got {self.table_decades!r}")
+        eta, w = _gauss(int(self.sections))
+        powers = eta[None, :] ** np.arange(4, -1, -1)[:, None]  # rows eta^4 .. eta^0
+        object.__setattr__(self, "_rule", (eta, np.ascontiguousarray(powers * w[None, :])))
+
+    @property
+    def parameter_names(self) -> tuple:
+        """Every parameter name :meth:`state` accepts."""
+        law = self.law.parameter_names if self.law is not None else ()
+        return _BASE[:2] + law + _BASE[2:] + _GEOMETRY
+
+    # --- set-up -------------------------------------------------------------------------------
+
+    def _table(self, p, n_sets) -> _Compliance:
+        lin = np.broadcast_to(p["EJ_min"] * (1 + 1j * p["beta_material"]), (n_sets,)).astype(complex)
+        if self.law is None:
+            return _linear_compliance(lin)
+        lp = {k: np.broadcast_to(p[k], (n_sets,))[:, None] for k in self.law.parameter_names}
+        return _compliance_table(self.law, lp, lin, int(self.table_points), float(self.table_decades))
+
+    @staticmethod
+    def _arms(p, n_sets, omega, x0, table: _Compliance) -> _Arms:
+        """The per-entry constants (see :class:`_Arms`) from the damper's consistent mass matrices."""
+        nf = omega.size
+
+        def full(a1, a2):
+            """Per-arm values (each scalar or (n_sets,)) -> flat (n_sets * nf * 2,)."""
+            a = np.stack(np.broadcast_arrays(a1, a2), axis=-1).reshape(-1, 1, 2)
+            return np.broadcast_to(a, (n_sets, nf, 2)).reshape(-1)
+
+        def per_line(v):
+            return np.broadcast_to(v[None, :, None], (n_sets, nf, 2)).reshape(-1)
+
+        L = full(p["L1"], p["L2"])
+        m, J = full(p["m1"], p["m2"]), full(p["J1"], p["J2"])
+        a = full(-p["a1"], p["a2"])  # arm 1 runs from the clamp towards -y: offsets and rotations flip
+        r = full(-p["rocking_rad_per_m"], p["rocking_rad_per_m"])
+        cm = full(p["mu"], p["mu"]) * L / 420.0
+        w2, xb = per_line(omega**2), per_line(x0)
+        # node block: end mass + consistent mass; node-clamp block; clamp row of the clamp blocks
+        n00, n01, n11 = m + 156 * cm, m * a - 22 * cm * L, J + m * a * a + 4 * cm * L * L
+        b00, b01, b10, b11 = 54 * cm, 13 * cm * L, -13 * cm * L, -3 * cm * L * L
+        w0, t0 = xb, r * xb
+        wr, tr = w0 + L * t0, t0  # the node's rigid motion with the clamp
+        c0 = w2 * (n00 * wr + n01 * tr + b00 * w0 + b01 * t0)
+        c1 = w2 * (n01 * wr + n11 * tr + b10 * w0 + b11 * t0)
+        # N = Mm^-1 and N c: the node's mass block inverted (positive definite: m, J > 0 or mu > 0)
+        idet = 1.0 / (w2 * w2 * L**4 * (n00 * n11 - n01 * n01))
+        nn = np.stack([w2 * L * n11 * idet, -w2 * L**2 * n01 * idet, w2 * L**3 * n00 * idet])
+        nc = np.stack([nn[0] * L * c0 + nn[1] * c1, nn[1] * L * c0 + nn[2] * c1])
+        # vertical clamp force: -V - omega^2 (Maa q0 + Mab q)[0] with q = M_node^-1 (P / omega^2 - Mba q0)
+        # and Mab[0] = cm (54, -13 L): linear in P
+        idet = 1.0 / (n00 * n11 - n01 * n01)
+        u0 = (n11 * 54 * cm + n01 * 13 * cm * L) * idet
+        u1 = (-n01 * 54 * cm - n00 * 13 * cm * L) * idet
+        fa, fb = -(1.0 + u0) / L, -u1
+        fc = -w2 * cm * (156 * w0 + 22 * L * t0) + w2 * (u0 * (b00 * w0 + b01 * t0) + u1 * (b10 * w0 + b11 * t0))
+        row = np.broadcast_to(np.arange(n_sets)[:, None, None], (n_sets, nf, 2)).reshape(-1)
+        inv_h = table.inv_h[row]
+        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, inv_h=inv_h,
+                     y0ih=table.y0[row] * inv_h, length=L)
+
+    # --- Newton on the node loads ---------------------------------------------------------------
+
+    def _sums(self, table, arms: _Arms, p0, p1):
+        """Section moments of K, dK/dt and (dK/dt) / |M|^2 against the weights ``w eta^k``.
+
+        Returns (sk, sd, se): complex arrays of shape (3, b), (3, b), (5, b), row k holding the
+        weight ``w eta^(2-k)`` (sk, sd) or ``w eta^(4-k)`` (se); and the sections' (Kr, Ki, |M|^-2),
+        each (Q, b). All are :class:`_Work` buffers, valid until the next call.
+        """
+        eta, wp = self._rule
+        q, b = eta.size, p0.size
+        # |M|^2 along the arm, a quadratic in eta: |p0|^2 eta^2 + 2 Re(p0 conj p1) eta + |p1|^2
+        m2 = _Work.get("m2", (q, b))
+        np.multiply.outer(eta, p0.real**2 + p0.imag**2, out=m2)
+        m2 += 2.0 * (p0.real * p1.real + p0.imag * p1.imag)
+        m2 *= eta[:, None]
+        m2 += p1.real**2 + p1.imag**2
+        kd = _Work.get("kd", (q, 4, b))  # Kr, Ki, Dr, Di: one block for one matrix product
+        _lookup(table, m2, arms.row, arms.y0ih, arms.inv_h, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
+        np.maximum(m2, _TINY, out=m2)
+        np.reciprocal(m2, out=m2)
+        e = _Work.get("e", (q, 2, b))
+        np.multiply(kd[:, 2], m2, out=e[:, 0])
+        np.multiply(kd[:, 3], m2, out=e[:, 1])
+        s4 = np.matmul(wp[2:], kd.reshape(q, 4 * b), out=_Work.get("s4", (3, 4 * b))).reshape(3, 4, b)
+        s2 = np.matmul(wp, e.reshape(q, 2 * b), out=_Work.get("s2", (5, 2 * b))).reshape(5, 2, b)
+        out = []
+        for name, src, i in (("sk", s4, 0), ("sd", s4, 2), ("se", s2, 0)):
+            z = _Work.get(name, (src.shape[0], b), complex)
+            z.real, z.imag = src[:, i], src[:, i + 1]
+            out.append(z)
+        return (*out, (kd[:, 0], kd[:, 1], m2))
+
+    def _residual(self, table, arms, p):
+        """Residual ``R(p) = S(p) + N c - N p`` (2, b), the Newton matrices X, Y (``dR = -(X dp +
+        Y conj(dp))``, symmetric, (3, b) each) and the sections' (Kr, Ki, |M|^-2)."""
+        p0, p1 = p
+        sk, sd, se, sec = self._sums(table, arms, p0, p1)
+        # S(p) = SK p with SK = (sk[eta^2], sk[eta], sk[1]) symmetric, so R = N c - (N - SK) p
+        x = np.subtract(arms.n, sk, out=sk)
+        r = _Work.get("r", (2, p0.size), complex)
+        np.multiply(x[0], p0, out=r[0])
+        r[0] += x[1] * p1
+        np.multiply(x[1], p0, out=r[1])
+        r[1] += x[2] * p1
+        np.subtract(arms.nc, r, out=r)
+        # dS = A dp + B conj(dp): A = sum w l l^T (K + dK/dy), B = sum w l l^T (M^2/|M|^2) dK/dy
+        sd *= arms.inv_h
+        x -= sd
+        y = np.multiply(p0 * p0, se[:3], out=sd)
+        y += (2.0 * p0 * p1) * se[1:4]
+        y += (p1 * p1) * se[2:]
+        y *= -arms.inv_h
+        return r, x, y, sec
+
+    @staticmethod
+    def _uniform_start(arms: _Arms, k):
+        """The loads of a cable with one compliance ``k`` (b,) along each arm (exact, linear)."""
+        n00, n01, n11 = arms.n
+        x00, x01, x11 = n00 - k / 3.0, n01 - k / 2.0, n11 - k
+        c0, c1 = arms.nc
+        idet = 1.0 / (x00 * x11 - x01 * x01)
+        return np.stack([(x11 * c0 - x01 * c1) * idet, (x00 * c1 - x01 * c0) * idet])
+
+    def _start(self, table, arms: _Arms):
+        """Start of Newton: the cable with one compliance along each arm, at the arm's rms moment.
+
+        A relaxed fixed point in ``z = ln(mean |M|^2)`` from the fully slipped cable:
+        ``z <- (1 - r) z + r ln(mean |M(K(z))|^2)``; a few steps put the loads on the right scale
+        (they may be 10x the slipped cable's near a resonance of the partly stuck one).
+        """
+        p = self._uniform_start(arms, table.refs[arms.row, 1])
+        z = None
+        for _ in range(_START_STEPS):
+            p0, p1 = p
+            # mean of |p0 eta + p1|^2 over eta in [0, 1]
+            znew = np.log(np.maximum((p0.real**2 + p0.imag**2) / 3.0 + (p0.real * p1.real + p0.imag * p1.imag)
+                                     + p1.real**2 + p1.imag**2, _TINY))
+            z = znew if z is None else z + _START_RELAX * (znew - z)
+            kr, ki, _, _ = _lookup(table, z[None, :], arms.row, arms.y0ih, arms.inv_h, log=False)
+            p = self._uniform_start(arms, kr[0] + 1j * ki[0])
+        return p
+
+    def _newton(self, table, arms: _Arms, p, sections=True):
+        """Damped Newton from ``p`` (2, b) for every entry; converged entries leave the batch.
+
+        A step is at most half of ``|p|`` (far from the solution the widely linear model is poor),
+        and an entry whose residual grew halves its later steps until it falls again. Returns
+        (p (2, b), step, iterations per entry, K per section (Q, b) complex, |M|^-2 (Q, b)), the
+        sections those of the last evaluation (before the last step, which is below ``tol``; not
+        kept with ``sections=False``: None).
+        """
+        q, b = int(self.sections), p.shape[1]
+        p = p.astype(complex)
+        step = np.full(b, np.inf)
+        its = np.zeros(b, dtype=int)
+        ksec = np.empty((q, b), dtype=complex) if sections else None
+        inv_m2 = np.empty((q, b)) if sections else None
+        damping = np.ones(b)
+        merit = np.full(b, np.inf)
+        active = np.arange(b)
+        sub = arms
+        for it in range(self.max_iter):
+            pa = p[:, active]
+            r, x, y, (kr, ki, im2) = self._residual(table, sub, pa)
+            d = _widely_solve(x, y, r)
+            norm2 = (pa.real**2 + pa.imag**2).sum(axis=0)
+            size = np.sqrt((d.real**2 + d.imag**2).sum(axis=0) / np.maximum(norm2, _TINY))
+            ok = np.isfinite(size)
+            f = (r.real**2 + r.imag**2).sum(axis=0)
+            lam = np.where(f > merit[active], 0.5 * damping[active], np.minimum(1.0, 2.0 * damping[active]))
+            damping[active], merit[active] = lam, f
+            lam = np.where(ok, np.minimum(lam, _STEP_CAP / np.maximum(size, _TINY)), 0.0)
+            p[:, active] = pa + lam * np.where(ok, d, 0.0)
+            step[active] = np.where(ok, size, np.inf)
+            its[active] += 1
+            done = ok & (size < self.tol)
+            leave = done if it < self.max_iter - 1 else np.ones(done.shape, dtype=bool)
+            if sections and leave.any():
+                gone = active[leave]
+                ksec.real[:, gone] = kr[:, leave]
+                ksec.imag[:, gone] = ki[:, leave]
+                inv_m2[:, gone] = im2[:, leave]
+            if leave.all():
+                break
+            if leave.any():
+                active = active[~leave]
+                sub = arms.take(active)
+        return p, step, its, ksec, inv_m2
+
+    # --- public -------------------------------------------------------------------------------
+
+    def state(self, damper: Damper, freq_hz, amplitude_mm_pp, *, segments=None, continuation=False,
+              **params) -> CableState:
+        """Steady state of the cable at every line.
+
+        Parameters
+        ----------
+        damper : Damper
+            Nominal geometry (every geometry parameter not given).
+        freq_hz : array_like, shape (n_freq,)
+            Frequency lines [Hz] (several tests may be concatenated; see ``segments``).
+        amplitude_mm_pp : float or array_like, shape (n_freq,)
+            Commanded base amplitude per line [mm peak-to-peak].
+        segments : array_like of int, shape (n_freq,), optional
+            Test index per line (a sweep restarts at each test's first line); default: a new test
+            wherever the frequency does not increase (:func:`segments_from_frequencies`). Used by
+            ``continuation`` only.
+        continuation : bool
+            Follow a stepped-sine sweep up each test: every line is also solved from its
+            predecessor's state and from the stuck cable; where these give two steady states the
+            line is flagged (:attr:`CableState.fold`) and the sweep's branch is resolved line by
+            line. Off (the sampler's path), every line is solved once, from the fully slipped cable.
+        **params : float or array_like, shape (n_sets,)
+            See the class docstring.
+
+        Returns
+        -------
+        CableState
+        """
+        return self._run(damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full=True)
+
+    def dynamic_stiffness(self, damper: Damper, freq_hz, amplitude_mm_pp, *, segments=None, continuation=False,
+                          **params) -> np.ndarray:
+        """``f_uu`` [N/m], complex (n_sets, n_freq): :meth:`state` ``.f_uu`` (NaN outside the law's domain).
+
+        The sampler's path: the same numbers as :meth:`state`, without the section state.
+        """
+        return self._run(damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full=False)
+
+    def _run(self, damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full):
+        law_names = self.law.parameter_names if self.law is not None else ()
+        p, n_sets = _resolve(self.parameter_names, _BASE[:2] + law_names, damper, params)
+        f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments)
+        valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
+        if self.law is not None:
+            valid = valid & self.law.valid(**{k: p[k] for k in law_names})
+        valid = np.broadcast_to(valid, (n_sets,))
+        if valid.all():
+            table = self._table(p, n_sets)
+            valid = table.monotone
+        if not valid.all():
+            return self._subset(damper, f, amp, seg, continuation, p, n_sets, valid, full)
+        omega = 2 * np.pi * f
+        x0 = amp / 2 * 1e-3
+        arms = self._arms(p, n_sets, omega, x0, table)
+        sections = full or continuation
+        sol = self._newton(table, arms, self._start(table, arms), sections)
+        iterations = int(sol[2].max())
+        fold = np.zeros((n_sets, f.size), dtype=bool)
+        if continuation and f.size > 1:
+            sol, fold, extra = self._continuation(table, arms, sol, seg, n_sets, f.size)
+            iterations += extra
+        if not full:
+            return self._f_uu(arms, sol[0], p, n_sets, omega, x0)
+        return self._assemble(table, arms, sol, fold, iterations, p, n_sets, omega, x0)
+
+    @staticmethod
+    def _f_uu(arms, p_load, p, n_sets, omega, x0):
+        """``f_uu`` (n_sets, n_freq) from the loads: both arms' vertical clamp forces + the clamp's inertia."""
+        fa, fb, fc = arms.force
+        force = (fa * p_load[0] + fb * p_load[1] + fc).reshape(n_sets, omega.size, 2).sum(axis=-1)
+        r = p["rocking_rad_per_m"][:, None]
+        body = -(omega**2)[None, :] * p["mc"][:, None] * (1 + p["ac"][:, None] * r)
+        return np.broadcast_to(force / x0[None, :] + body, (n_sets, omega.size)).copy()
+
+    def _assemble(self, table, arms, sol, fold, iterations, p, n_sets, omega, x0) -> CableState:
+        (p0, p1), step, _, ksec, inv_m2 = sol
+        nf = omega.size
+        f_uu = self._f_uu(arms, sol[0], p, n_sets, omega, x0)
+
+        def per_line(v):  # (..., b) -> (n_sets, nf, 2, ...)
+            lead = v.ndim - 1
+            return np.moveaxis(v.reshape(*v.shape[:-1], n_sets, nf, 2), tuple(range(lead)),
+                               tuple(range(-lead, 0)))
+
+        load = per_line(np.stack([p0 / arms.length, p1]))
+        curvature = per_line(np.abs(ksec) / np.sqrt(inv_m2))
+        # the curvature's range along the whole arm: |M| is largest at an end, least at eta*
+        a2 = p0.real**2 + p0.imag**2
+        eta = np.clip(-(p0 * np.conj(p1)).real / np.maximum(a2, _TINY), 0.0, 1.0)
+        m2 = np.abs(np.stack([p1, p0 + p1, p0 * eta + p1])) ** 2
+        kr, ki, _, _ = _lookup(table, m2, arms.row, arms.y0ih, arms.inv_h)
+        ends = per_line(np.sqrt(m2) * np.hypot(kr, ki)).reshape(n_sets, nf, -1)
+        step = step.reshape(n_sets, nf, 2).max(axis=-1)
+        return CableState(f_uu=f_uu, load=load, curvature=curvature, rigidity=per_line(1.0 / ksec),
+                          curvature_range=np.stack([ends.min(axis=-1), ends.max(axis=-1)], axis=-1),
+                          converged=step < self.tol, fold=fold, residual=step, iterations=iterations,
+                          sections=1.0 - self._rule[0])
+
+    def _subset(self, damper, f, amp, seg, continuation, p, n_sets, valid, full):
+        """Solve the valid sets only; the others get NaN (outside the law's domain)."""
+        keep = np.flatnonzero(valid)
+        nf, q = f.size, int(self.sections)
+        sub = {k: (v[keep] if v.size == n_sets and n_sets > 1 else v) for k, v in p.items()}
+        if not full:
+            out = np.full((n_sets, nf), np.nan + 0j)
+            if keep.size:
+                out[keep] = self._run(damper, f, amp, seg, continuation, sub, full=False)
+            return out
+        out = dict(f_uu=np.full((n_sets, nf), np.nan + 0j), load=np.full((n_sets, nf, 2, 2), np.nan + 0j),
+                   curvature=np.full((n_sets, nf, 2, q), np.nan), rigidity=np.full((n_sets, nf, 2, q), np.nan + 0j),
+                   curvature_range=np.full((n_sets, nf, 2), np.nan), converged=np.zeros((n_sets, nf), dtype=bool),
+                   fold=np.zeros((n_sets, nf), dtype=bool), residual=np.full((n_sets, nf), np.inf))
+        iterations = 0
+        if keep.size:
+            st = self._run(damper, f, amp, seg, continuation, sub, full=True)
+            for k in out:
+                out[k][keep] = getattr(st, k)
+            iterations = st.iterations
+        return CableState(**out, iterations=iterations, sections=1.0 - self._rule[0])
+
+    def _continuation(self, table, arms, sol, seg, n_sets, nf):
+        """Check every line against restarts from its predecessor and from the stuck cable; where
+        two steady states exist, flag the line and follow the sweep's branch line by line."""
+        shape = (n_sets, nf, 2)
+        first = np.concatenate([[True], seg[1:] != seg[:-1]])
+        prev = np.roll(np.arange(n_sets * nf * 2).reshape(shape), 1, axis=1)
+        prev[:, first] = np.arange(n_sets * nf * 2).reshape(shape)[:, first]
+        again = self._newton(table, arms, sol[0][:, prev.reshape(-1)])
+        stuck = self._newton(table, arms, self._uniform_start(arms, table.refs[arms.row, 0]))
+        iterations = int(again[2].max()) + int(stuck[2].max())
+
+        def differs(a, b, lines=(n_sets, nf)):
+            """Per line: both converged on an arm and their loads differ there."""
+            gap = np.sqrt((np.abs(a[0] - b[0]) ** 2).sum(axis=0))
+            d = (gap > self.fold_tol * np.sqrt((np.abs(a[0]) ** 2).sum(axis=0))) & (a[1] < self.tol) & (b[1] < self.tol)
+            return d.reshape(*lines, 2).any(axis=-1)
+
+        diff = differs(sol, again)
+        diff[:, first] = False
+        fold = diff | differs(sol, stuck) | differs(again, stuck)
+        if not diff.any():
+            return sol, fold, iterations
+        # in sweep order from the first line with two states: take the restart's solution, and
+        # re-solve a line from its (changed) predecessor until the sweep rejoins the first pass
+        out = [v.copy() for v in sol]
+        lines = np.arange(n_sets * nf * 2).reshape(shape)
+
+        def put(idx, src, at):
+            for dst, v in zip(out, src):
+                dst[..., idx] = v[..., at]
+
+        changed = np.zeros(n_sets, dtype=bool)
+        for k in range(nf):
+            if first[k]:
+                changed[:] = False
+                continue
+            take = diff[:, k] & ~changed  # predecessor as in the second pass: its result stands
+            if take.any():
+                idx = lines[take, k].reshape(-1)
+                put(idx, again, idx)
+            if changed.any():
+                sets = np.flatnonzero(changed)
+                idx = lines[sets, k].reshape(-1)
+                new = self._newton(table, arms.take(idx), out[0][:, lines[sets, k - 1].reshape(-1)])
+                iterations += int(new[2].max())
+                now = differs([out[0][:, idx], out[1][idx]], new, (sets.size,))
+                fold[sets, k] |= now
+                put(idx, new, np.arange(idx.size))
+                changed[sets] = now
+            changed |= take
+        return tuple(out), fold, iterations
+
+
+# --- the element model (the virtual bench) ---------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ElementCableState:
     """The distributed cable's steady state per parameter set and frequency line.
 
     Attributes
@@ -88,17 +890,6 @@ class CableState:
         """Smallest and largest element curvature amplitude per line [1/m], shape (n_sets, n_freq, 2)."""
         c = self.curvature.reshape(*self.curvature.shape[:2], -1)
         return np.stack([c.min(axis=-1), c.max(axis=-1)], axis=-1)
-
-
-def segments_from_frequencies(freq_hz) -> np.ndarray:
-    """Test index per line, a new test starting wherever the frequency does not increase.
-
-    Returns
-    -------
-    ndarray of int, shape (n_freq,)
-    """
-    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
-    return np.concatenate([[0], np.cumsum(np.diff(f) <= 0)]).astype(int)
 
 
 # --- 2x2 block algebra on batches (tuples of arrays: (a00, a01, a10, a11); symmetric: (a00, a01, a11))
@@ -144,7 +935,7 @@ class _Batch:
                       linear=self.linear[idx], law_params={k: v[idx] for k, v in self.law_params.items()})
 
 
-class _Arms:
+class _ElementArms:
     """One factorisation of every arm's free-node dynamic stiffness at given element rigidities."""
 
     def __init__(self, c: _Batch, sigma):
@@ -250,7 +1041,7 @@ def _solve_small(a, b):
 
 
 @dataclass(frozen=True)
-class CableModel:
+class ElementCableModel:
     """The distributed strand-slip cable: ``f_uu`` and its steady state for parameter sets.
 
     Parameters (keyword arguments of :meth:`state`; each a scalar or shape (n_sets,)):
@@ -308,25 +1099,6 @@ class CableModel:
 
     # --- set-up -------------------------------------------------------------------------------
 
-    def _resolve(self, damper: Damper, params: dict):
-        unknown = sorted(set(params) - set(self.parameter_names))
-        if unknown:
-            raise InputError(f"unknown parameter {unknown[0]!r}; known: {', '.join(self.parameter_names)}")
-        for name in ("EJ_min", "beta_material") + (self.law.parameter_names if self.law else ()):
-            if name not in params:
-                raise InputError(f"parameter {name!r} is required")
-        n_sets, out = 1, {}
-        for name, value in params.items():
-            a = np.asarray(value, dtype=float)
-            if a.ndim > 1 or (a.ndim == 1 and n_sets not in (1, a.size) and a.size != 1):
-                raise InputError(f"parameter {name!r}: expected a scalar or shape (n_sets,), got shape {a.shape}")
-            n_sets = max(n_sets, a.size) if a.ndim == 1 else n_sets
-            out[name] = a.reshape(-1)
-        for name in _GEOMETRY:
-            out.setdefault(name, np.array([getattr(damper, name)]))
-        out.setdefault("rocking_rad_per_m", np.zeros(1))
-        return out, n_sets
-
     def _batch(self, p: dict, n_sets: int, omega, x0) -> _Batch:
         n, nf = int(self.n_elements), omega.size
 
@@ -371,7 +1143,7 @@ class CableModel:
     def _evaluate(self, c: _Batch, z, jacobian: bool):
         """Map T(z) (N, B), the arm force (B,), and optionally dG/du of G(u) = ln T(e^u) - u (B, N, N)."""
         sigma = self._sigma(c, z)
-        arms = _Arms(c, sigma)
+        arms = _ElementArms(c, sigma)
         x = arms.response()
         ends = [_curvature_ends(c, x, e) for e in range(self.n_elements)]
         t = np.stack([_rms(c0, c1) for c0, c1 in ends])
@@ -443,7 +1215,7 @@ class CableModel:
     # --- public -------------------------------------------------------------------------------
 
     def state(self, damper: Damper, freq_hz, amplitude_mm_pp, *, segments=None, linear_rigidity=None,
-              **params) -> CableState:
+              **params) -> ElementCableState:
         """Steady state of the cable at every line, following a stepped-sine sweep up each test.
 
         Parameters
@@ -465,11 +1237,12 @@ class CableModel:
 
         Returns
         -------
-        CableState
+        ElementCableState
         """
         if linear_rigidity is not None:
             params = dict(params, EJ_min=1.0, beta_material=0.0)  # placeholders, replaced below
-        p, n_sets = self._resolve(damper, params)
+        law_names = self.law.parameter_names if self.law is not None else ()
+        p, n_sets = _resolve(self.parameter_names, _BASE[:2] + law_names, damper, params)
         valid = np.broadcast_to((p["EJ_min"] > 0) & (p["beta_material"] >= 0), (n_sets,))
         if self.law is not None:
             valid = valid & np.broadcast_to(self.law.valid(**{k: p[k] for k in self.law.parameter_names}), (n_sets,))
@@ -482,15 +1255,7 @@ class CableModel:
             if linear_rigidity is not None:
                 raise InputError("linear_rigidity: the law's parameters are outside its domain")
             return self._with_invalid(damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid)
-        f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
-        if f.ndim != 1 or not np.all(np.isfinite(f) & (f > 0)):
-            raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
-        amp = np.broadcast_to(np.asarray(amplitude_mm_pp, dtype=float), f.shape)
-        if not np.all(np.isfinite(amp) & (amp > 0)):
-            raise InputError("amplitude_mm_pp: expected finite amplitudes > 0 [mm p-p], scalar or shape (n_freq,)")
-        seg = segments_from_frequencies(f) if segments is None else np.asarray(segments)
-        if seg.shape != f.shape:
-            raise InputError(f"segments: expected shape {f.shape}, got {seg.shape}")
+        f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments)
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
         c = self._batch(p, n_sets, omega, x0)
@@ -520,7 +1285,7 @@ class CableModel:
         curv = np.moveaxis(per_line(z, (n,)), 0, -1)
         rig = np.moveaxis(per_line(sigma, (n,)), 0, -1)
         res = per_line(resid).max(axis=-1)
-        return CableState(f_uu=np.broadcast_to(f_uu, (n_sets, nf)).copy(), curvature=curv, rigidity=rig,
+        return ElementCableState(f_uu=np.broadcast_to(f_uu, (n_sets, nf)).copy(), curvature=curv, rigidity=rig,
                           converged=res < self.tol, fold=fold, residual=res, iterations=int(iterations),
                           mesh=self._mesh.copy())
 
@@ -539,10 +1304,10 @@ class CableModel:
             for k in out:
                 out[k][keep] = getattr(st, k)
             iterations = st.iterations
-        return CableState(**out, iterations=iterations, mesh=self._mesh.copy())
+        return ElementCableState(**out, iterations=iterations, mesh=self._mesh.copy())
 
     def _linear_curvatures(self, c, sigma):
-        arms = _Arms(c, sigma)
+        arms = _ElementArms(c, sigma)
         x = arms.response()
         return np.stack([_rms(*_curvature_ends(c, x, e)) for e in range(self.n_elements)])
 

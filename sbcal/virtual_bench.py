@@ -44,7 +44,7 @@ import pandas as pd
 from .bench import BENCH_COLUMNS, curves_to_frame
 from .damper import Damper
 from .errors import InputError
-from .cable import CableModel
+from .cable import ElementCableModel
 from .fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
 from .hysteresis import law_for
 
@@ -96,8 +96,8 @@ BENCH_ELEMENTS = 12
 class SlipLaw:
     """The bench cable's strand slip: a hysteresis law of :mod:`sbcal.hysteresis` along both arms.
 
-    The cable is :class:`sbcal.cable.CableModel` with ``elements`` Hermite elements per arm, each
-    with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``; ``EJ_min`` is the bench's ``EJ``
+    The cable is :class:`sbcal.cable.ElementCableModel` with ``elements`` Hermite elements per arm,
+    each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``; ``EJ_min`` is the bench's ``EJ``
     parameter and ``beta_material`` its ``beta``. Each run follows the branch a stepped-sine sweep up
     the grid reaches (continuation from line to line).
 
@@ -338,7 +338,7 @@ class BenchConfig:
         and on the phase, tilted linearly over the sweep by up to the same amount.
     slip_tol : float
         Convergence tolerance of the strand-slip fixed point (``max |ln T(chi) - ln chi|`` over the
-        elements, :class:`sbcal.cable.CableModel`).
+        elements, :class:`sbcal.cable.ElementCableModel`).
     slip_max_iter : int
         Newton budget per pass of the fixed point (InputError if a line does not converge).
     """
@@ -430,7 +430,7 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         the slip law's curvature scale: the run-to-run scatter.
     tol, max_iter : float, int
         The strand-slip fixed point's tolerance (on ``ln chi``) and Newton budget per pass
-        (:class:`sbcal.cable.CableModel`); a line that does not converge is an InputError.
+        (:class:`sbcal.cable.ElementCableModel`); a line that does not converge is an InputError.
 
     Returns
     -------
@@ -478,7 +478,7 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         lp[slip.scale_name] = lp[slip.scale_name] * np.asarray(chi0_scale, dtype=float).reshape(-1)
         ej = col["EJ"] * ej_scale * factor
         linear = np.stack(np.broadcast_arrays(ej * (1 + 1j * b1), ej * (1 + 1j * b2)), axis=-1)
-        model = CableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter)
+        model = ElementCableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter)
         lp = {k: (np.asarray(v, dtype=float) if np.ndim(v) == 0 else np.asarray(v, dtype=float).reshape(-1))
               for k, v in lp.items()}
         state = model.state(damper, f, amplitude_mm_pp, linear_rigidity=linear, rocking_rad_per_m=rocking,

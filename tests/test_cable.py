@@ -7,7 +7,7 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from sbcal.cable import DEFAULT_N_ELEMENTS, CableModel, segments_from_frequencies
+from sbcal.cable import DEFAULT_N_ELEMENTS, ElementCableModel, segments_from_frequencies
 from sbcal.errors import InputError
 from sbcal.fem import STANDARD_GRID_HZ, clamp_impedance, dynamic_stiffness
 from sbcal.hysteresis import DahlLaw, HysteresisLaw, IwanLaw, LawParameter, LognormalIwanLaw
@@ -21,7 +21,7 @@ IWAN = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_macro=0.02, micro
 def test_linear_massless_cable_is_the_six_dof_model_exactly(damper1, n):
     # static condensation of a uniform beam's interior nodes is exact: any N, any grading
     for grading in (1.0, 3.0):
-        m = CableModel(None, n_elements=n, grading=grading)
+        m = ElementCableModel(None, n_elements=n, grading=grading)
         got = m.dynamic_stiffness(damper1, G, 0.5, EJ_min=9.0, beta_material=0.2, mu=0.0)
         ref = dynamic_stiffness(damper1, G, EJ=9.0, beta=0.2, mu=0.0)
         np.testing.assert_allclose(got, ref, rtol=1e-10)
@@ -29,9 +29,9 @@ def test_linear_massless_cable_is_the_six_dof_model_exactly(damper1, n):
 
 def test_linear_cable_with_mass_converges_to_the_beam(damper1):
     ref = dynamic_stiffness(damper1, G, EJ=9.0, beta=0.2)
-    one = CableModel(None, n_elements=1).dynamic_stiffness(damper1, G, 0.5, EJ_min=9.0, beta_material=0.2)
+    one = ElementCableModel(None, n_elements=1).dynamic_stiffness(damper1, G, 0.5, EJ_min=9.0, beta_material=0.2)
     np.testing.assert_allclose(one, ref, rtol=1e-12)  # one element is the 6-DOF model itself
-    errors = [np.max(np.abs(CableModel(None, n_elements=n).dynamic_stiffness(
+    errors = [np.max(np.abs(ElementCableModel(None, n_elements=n).dynamic_stiffness(
         damper1, G, 0.5, EJ_min=9.0, beta_material=0.2) / ref - 1)) for n in (2, 4, 8, 16)]
     # consistent mass: the 1-element model is already within 6e-4 of the converged one; the
     # differences between successive meshes fall (the mesh converges)
@@ -43,7 +43,7 @@ def test_linear_cable_with_mass_converges_to_the_beam(damper1):
 def test_slip_part_vanishes_with_mu_zero_for_any_n(damper1):
     # delta_EJ -> 0: the law's slip part is gone, the cable is linear (massless: exact for any N)
     for n in (2, 5):
-        got = CableModel(DahlLaw(), n_elements=n).dynamic_stiffness(
+        got = ElementCableModel(DahlLaw(), n_elements=n).dynamic_stiffness(
             damper1, G, 1.0, EJ_min=9.0, beta_material=0.2, delta_EJ=1e-12, chi_dahl=1e-3, mu=0.0)
         np.testing.assert_allclose(got, dynamic_stiffness(damper1, G, EJ=9.0, beta=0.2, mu=0.0), rtol=1e-10)
 
@@ -53,12 +53,12 @@ def test_tiny_amplitude_is_the_stuck_cable(damper1):
     # friction loss grows like the amplitude: at 1e-6 mm it still moves the resonance peak by 1e-3)
     ej = DAHL["EJ_min"] + DAHL["delta_EJ"]
     beta = DAHL["EJ_min"] * 0.5 / ej
-    got = CableModel(DahlLaw(), n_elements=4).dynamic_stiffness(damper1, G, 1e-10, mu=0.0, **dict(DAHL, beta_material=0.5))
+    got = ElementCableModel(DahlLaw(), n_elements=4).dynamic_stiffness(damper1, G, 1e-10, mu=0.0, **dict(DAHL, beta_material=0.5))
     np.testing.assert_allclose(got, dynamic_stiffness(damper1, G, EJ=ej, beta=beta, mu=0.0), rtol=1e-6)
 
 
 def test_base_rocking_is_f_uu_plus_r_f_uphi(damper1):
-    got = CableModel(None, n_elements=3).dynamic_stiffness(damper1, G, 0.5, EJ_min=9.0, beta_material=0.2,
+    got = ElementCableModel(None, n_elements=3).dynamic_stiffness(damper1, G, 0.5, EJ_min=9.0, beta_material=0.2,
                                                           mu=0.0, rocking_rad_per_m=3.0, ac=0.004)
     H = clamp_impedance(damper1, G, EJ=9.0, beta=0.2, mu=0.0, ac=0.004)
     np.testing.assert_allclose(got, H[..., 0, 0] + 3.0 * H[..., 0, 1], rtol=1e-10)
@@ -95,7 +95,7 @@ def _dense_arm(damper, freq_hz, amp_mm, rigidity, arm, n, mu):
 @pytest.mark.parametrize("law, params", [(DahlLaw(), DAHL), (IwanLaw(), IWAN)], ids=["dahl", "iwan"])
 def test_state_is_a_fixed_point_of_the_plain_assembly(damper1, law, params):
     n = 4
-    st = CableModel(law, n_elements=n).state(damper1, G, 0.5, **params)
+    st = ElementCableModel(law, n_elements=n).state(damper1, G, 0.5, **params)
     assert st.converged.all() and st.residual.max() < 1e-9
     for arm in (0, 1):
         # the returned rigidities are the law at the returned curvatures ...
@@ -112,7 +112,7 @@ def test_state_is_a_fixed_point_of_the_plain_assembly(damper1, law, params):
 
 
 def test_vectorised_over_sets_and_tests(damper1):
-    m = CableModel(IwanLaw(), n_elements=3)
+    m = ElementCableModel(IwanLaw(), n_elements=3)
     sets = dict(IWAN, EJ_min=np.array([3.0, 5.0]), chi_macro=np.array([0.01, 0.03]))
     amp = np.concatenate([np.full(G.size, 0.2), np.where(G <= 10, 2.0, 1.0)])  # "0.2-0.2" then "2-1"
     f = np.concatenate([G, G])
@@ -127,7 +127,7 @@ def test_vectorised_over_sets_and_tests(damper1):
 
 
 def test_deterministic(damper1):
-    m = CableModel(DahlLaw())
+    m = ElementCableModel(DahlLaw())
     a = m.dynamic_stiffness(damper1, G, 2.0, **DAHL)
     b = m.dynamic_stiffness(damper1, G, 2.0, **DAHL)
     np.testing.assert_array_equal(a, b)
@@ -152,7 +152,7 @@ class _SofteningLaw(HysteresisLaw):
 
 def test_a_fold_is_detected_and_flagged(damper1):
     f = np.arange(4.0, 40.0, 0.25)
-    m = CableModel(_SofteningLaw(), n_elements=2)
+    m = ElementCableModel(_SofteningLaw(), n_elements=2)
     p = dict(EJ_min=2.0, beta_material=0.02, delta_EJ=20.0, chi_soft=3e-3)
     st = m.state(damper1, f, 0.1, **p)
     assert st.fold.any() and st.converged[st.fold].any()  # two steady states on those lines
@@ -161,11 +161,11 @@ def test_a_fold_is_detected_and_flagged(damper1):
     both = st.converged[0] & m.state(damper1, f[::-1], 0.1, segments=np.zeros(f.size, dtype=int), **p).converged[0, ::-1]
     assert np.any(np.abs(down[both] / st.f_uu[0, both] - 1) > 1e-3)
     # a Masing law dissipates as it softens: no fold on the same cable
-    assert not CableModel(DahlLaw(), n_elements=2).state(damper1, f, 0.1, **DAHL).fold.any()
+    assert not ElementCableModel(DahlLaw(), n_elements=2).state(damper1, f, 0.1, **DAHL).fold.any()
 
 
 def test_outside_the_domain_is_nan_and_bad_input_is_one_line(damper1):
-    m = CableModel(IwanLaw(), n_elements=2)
+    m = ElementCableModel(IwanLaw(), n_elements=2)
     st = m.state(damper1, G, 0.5, **dict(IWAN, micro_exponent=np.array([-0.5, -1.5])))
     assert np.all(np.isfinite(st.f_uu[0])) and np.all(np.isnan(st.f_uu[1])) and not st.converged[1].any()
     with pytest.raises(InputError, match="unknown parameter 'EJ'"):
@@ -175,11 +175,11 @@ def test_outside_the_domain_is_nan_and_bad_input_is_one_line(damper1):
     with pytest.raises(InputError, match="amplitude_mm_pp"):
         m.state(damper1, G, -1.0, **IWAN)
     with pytest.raises(InputError, match="n_elements"):
-        CableModel(IwanLaw(), n_elements=0)
+        ElementCableModel(IwanLaw(), n_elements=0)
 
 
 def test_model_is_picklable_and_names_its_parameters():
-    m = CableModel(LognormalIwanLaw(), n_elements=5, grading=2.0)
+    m = ElementCableModel(LognormalIwanLaw(), n_elements=5, grading=2.0)
     assert pickle.loads(pickle.dumps(m)).n_elements == 5
     assert m.parameter_names[:5] == ("EJ_min", "beta_material", "delta_EJ", "chi_median", "log_spread")
     assert "a1" in m.parameter_names and "rocking_rad_per_m" in m.parameter_names

@@ -12,7 +12,7 @@ from sbcal.bench import BENCH_COLUMNS, curves_to_frame, write_bench
 from sbcal.cli import main
 from sbcal.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, free_response
 from sbcal.reference import _beam_k, _beam_m
-from sbcal.cable import CableModel
+from sbcal.cable import ElementCableModel
 from sbcal.hysteresis import LognormalIwanLaw
 from sbcal.virtual_bench import (
     BENCH_ELEMENTS, DEFAULT_TESTS, EFFECTS, EXTRA_EFFECTS, BenchConfig, FixtureResonance, SlipLaw, parse_effect,
@@ -139,9 +139,10 @@ def test_fixture_resonance_is_a_narrow_passive_mode(damper1):
 # --- strand slip ---------------------------------------------------------------------------------
 
 def test_strand_slip_is_the_distributed_cable(damper1):
-    # the bench's cable is sbcal.cable.CableModel with its law and element count, followed up the grid
+    # the bench's cable is sbcal.cable.ElementCableModel with its law and element count, followed up
+    # the grid
     got = response(damper1, F, 1.0, {"EJ": 9.0, "beta": 0.1}, {"strand_slip": LAW})[0]
-    model = CableModel(LognormalIwanLaw(), n_elements=6)
+    model = ElementCableModel(LognormalIwanLaw(), n_elements=6)
     ref = model.dynamic_stiffness(damper1, F, 1.0, EJ_min=9.0, beta_material=0.1, delta_EJ=36.0, chi_median=0.004,
                                   log_spread=1.5)[0]
     np.testing.assert_allclose(got, ref, rtol=1e-9)
@@ -153,7 +154,7 @@ def test_strand_slip_is_the_distributed_cable(damper1):
 def test_strand_slip_runs_follow_one_branch_at_small_amplitude(damper1):
     # the old bench's 0.1-0.2 mm runs jumped between two branches at random; the bundled (Masing)
     # cable dissipates as it softens: no line has two steady states, for any re-clamping factor
-    model = CableModel(LognormalIwanLaw(), n_elements=BENCH_ELEMENTS)
+    model = ElementCableModel(LognormalIwanLaw(), n_elements=BENCH_ELEMENTS)
     scale = np.array([0.96, 0.98, 1.0, 1.02, 1.04])
     for amp in (0.1, 0.2):
         st = model.state(damper1, F, amp, EJ_min=4.4 * scale, beta_material=0.11, delta_EJ=42.0 * scale,
