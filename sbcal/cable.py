@@ -65,7 +65,7 @@ _FD_LOG_STEP = 1e-6  # forward-difference step of the law's slope in ln chi
 _MAX_LOG_STEP = 2.0  # element model: Newton step cap in ln chi (a factor e^2 per iteration)
 _TINY = 1e-300
 _STEP_CAP = 0.5  # fast model: a Newton step is at most this fraction of |P|
-_START_STEPS = 10  # fast model: relaxed steps of the one-compliance start
+_START_STEPS = 6  # fast model: relaxed steps of the one-compliance start
 _START_RELAX = 0.3
 # curvatures [1/m] scanned for the law's transition (where the slip part has lost half its stuck
 # value); the compliance table spans ``table_decades`` either side of it
@@ -125,20 +125,30 @@ def _grid(freq_hz, amplitude_mm_pp, segments):
 
 @dataclass(frozen=True, eq=False)
 class _Compliance:
-    """Section compliance ``K = 1 / EJ*(a(m))`` per parameter set, over ``y = ln m^2`` (m = |M| [N m]).
+    """Section compliance ``K = 1 / EJ*(a)`` per parameter set as a function of ``y = ln m^2``,
+    ``m = a |EJ*(a)| = |M|`` [N m] the section's moment amplitude.
 
-    A uniform grid ``y_j = y0 + j / inv_h`` (j = 0 .. n - 1) per set; on each interval ``K`` is the
-    cubic Hermite interpolant of the nodes' ``K`` and ``dK/dy``, stored as power coefficients in the
-    interval's local ``t in [0, 1]``. Beyond the grid, ``K -> k_ref + (K_end - k_ref) exp(p (y - y_end))``
-    with ``k_ref`` the stuck (below) or fully slipped (above) compliance and ``p`` matching the end
-    node's slope (value and slope continuous).
+    Nodes uniform in the curvature ``u = ln a`` (j = 0 .. n - 1), so they crowd where the moment
+    saturates while the curvature runs on (a uniform grid in ``y`` would step over that knee); on
+    each interval ``[y_j, y_j+1]`` ``K`` is the cubic Hermite interpolant of the nodes' ``K`` and
+    ``dK/dy``, stored as power coefficients in ``y - y_j``. A
+    section finds its interval through a uniform grid of buckets in ``y`` (the first interval of
+    each bucket, then ``steps`` comparisons with the next node): a gather, no search. Beyond the
+    nodes, ``K -> k_ref + (K_end - k_ref) exp(p (y - y_end))`` with ``k_ref`` the stuck (below) or
+    fully slipped (above) compliance and ``p`` matching the end node's slope.
 
     Attributes
     ----------
-    coef : ndarray, shape (8, n_sets * (n - 1))
-        Per interval ``Re c0..c3, Im c0..c3`` of ``K(t) = c0 + c1 t + c2 t^2 + c3 t^3``.
-    y0, inv_h : ndarray, shape (n_sets,)
-    n : int
+    coef : ndarray, shape (9, n_sets * (n - 1))
+        Per interval ``Re c0..c3, Im c0..c3`` of ``K = c0 + c1 v + c2 v^2 + c3 v^3``, ``v = y - y_j``,
+        then ``y_j``.
+    upper : ndarray, shape (n_sets * (n - 1),)
+        ``y_j+1`` of each interval (+inf for each set's last).
+    first : ndarray of intp, shape (n_sets * n_buckets,)
+        Global index of the interval holding each bucket's lower edge.
+    y0, inv_w : ndarray, shape (n_sets,)
+        First node's ``y`` and the inverse bucket width; ``y_end`` the last node's ``y``.
+    n, n_buckets, steps : int
     ends : ndarray of complex, shape (n_sets, 2)
         ``K`` at the first and last node.
     refs : ndarray of complex, shape (n_sets, 2)
@@ -146,46 +156,85 @@ class _Compliance:
     rates : ndarray of complex, shape (n_sets, 2)
         Tail exponents ``p`` [per unit y] below and above.
     monotone : ndarray of bool, shape (n_sets,)
-        ``a |EJ*(a)|`` increases over the table (the section inversion is unique).
+        ``a |EJ*(a)|`` increases over the table (a section's moment fixes its curvature).
     """
 
     coef: np.ndarray
+    upper: np.ndarray
+    first: np.ndarray
     y0: np.ndarray
-    inv_h: np.ndarray
+    y_end: np.ndarray
+    inv_w: np.ndarray
     n: int
+    n_buckets: int
+    steps: int
     ends: np.ndarray
     refs: np.ndarray
     rates: np.ndarray
     monotone: np.ndarray
 
+    def per_entry(self, row):
+        """``(y0, inv_w, bucket offset)`` of the parameter sets ``row`` (cached for the last ``row``)."""
+        cache = self.__dict__.get("_per_entry")
+        if cache is None or cache[0] is not row:
+            cache = (row, self.y0[row], self.inv_w[row], row * self.n_buckets)
+            object.__setattr__(self, "_per_entry", cache)
+        return cache[1:]
+
+
+def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> _Compliance:
+    """Pack nodes ``y`` (n_sets, n) increasing, ``K`` and ``dK/dy`` there into a :class:`_Compliance`."""
+    s, n = y.shape
+    rows = np.arange(s)
+    h = np.diff(y, axis=1)
+    h = np.where(h > 0, h, 1.0)
+    ka, kb, da, db = k[:, :-1], k[:, 1:], h * dk[:, :-1], h * dk[:, 1:]
+    c = np.stack([ka, da / h, (3 * (kb - ka) - 2 * da - db) / h**2, (2 * (ka - kb) + da + db) / h**3])
+    coef = np.concatenate([c.real, c.imag, y[None, :, :-1]]).reshape(9, -1)
+    upper = y[:, 1:].copy()
+    upper[:, -1] = np.inf
+    y0, y_end = y[:, 0], y[:, -1]
+    span = np.maximum(y_end - y0, _TINY)
+    nb = n_buckets_per_node * (n - 1)
+    while True:
+        # first interval of each bucket; the most nodes inside one bucket is the comparisons needed
+        edges = y0[:, None] + span[:, None] * (np.arange(nb) / nb)[None, :]
+        z = (y - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
+        ze = (edges - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
+        pos = np.searchsorted(z.ravel(), ze.ravel(), side="right").reshape(s, nb) - n * rows[:, None]
+        first = np.clip(pos - 1, 0, n - 2)
+        steps = int(np.max(np.diff(np.concatenate([pos, np.full((s, 1), n)], axis=1), axis=1), initial=0))
+        if steps <= max_steps or nb >= 64 * n:
+            break
+        nb *= 2
+    first = (first + (n - 1) * rows[:, None]).reshape(-1).astype(np.intp)
+    ends = k[:, [0, -1]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rates = dk[:, [0, -1]] / (ends - refs)
+    # a tail must decay towards its limit; otherwise hold the end value
+    ok = np.isfinite(rates) & (np.array([1.0, -1.0]) * rates.real > 0)
+    rates = np.where(ok, rates, 0.0)
+    return _Compliance(coef=np.ascontiguousarray(coef), upper=upper.reshape(-1), first=first, y0=y0, y_end=y_end,
+                       inv_w=nb / span, n=n, n_buckets=nb, steps=max(steps, 1), ends=ends, refs=refs,
+                       rates=rates, monotone=np.ones(s, dtype=bool))
+
 
 def _linear_compliance(lin) -> _Compliance:
-    """The table of a linear cable: ``K = 1 / lin`` everywhere (one interval, no slope)."""
-    k = 1.0 / lin
-    coef = np.zeros((8, lin.size))
-    coef[0], coef[4] = k.real, k.imag
-    both = np.stack([k, k], axis=1)
+    """The table of a linear cable: ``K = 1 / lin`` for every moment."""
+    k = np.repeat((1.0 / lin)[:, None], 2, axis=1)
     # one interval over every representable |M|^2 (ln of a double lies within +-745)
-    return _Compliance(coef=coef, y0=np.full(lin.size, -2000.0), inv_h=np.full(lin.size, 1 / 4000), n=2,
-                       ends=both, refs=both,
-                       rates=np.zeros((lin.size, 2), dtype=complex), monotone=np.ones(lin.size, dtype=bool))
-
-
-def _rigidity_and_slope(law, lp, lin, u):
-    """``EJ*`` at curvature ``e^u`` and its forward-difference slope ``dEJ*/du``; u (n_sets, k)."""
-    e = lin[:, None] + law.slip_rigidity(np.exp(u), **lp)
-    e2 = lin[:, None] + law.slip_rigidity(np.exp(u + _FD_LOG_STEP), **lp)
-    return e, (e2 - e) / _FD_LOG_STEP
+    y = np.repeat(np.array([[-2000.0, 2000.0]]), lin.size, axis=0)
+    return _hermite_table(y, k, np.zeros_like(k), k.copy())
 
 
 def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float) -> _Compliance:
-    """Tabulate ``K(y)`` for each parameter set: invert ``y = ln(a^2 |EJ*(a)|^2)`` on a uniform y grid.
+    """Tabulate ``K(y)`` for each parameter set.
 
     ``lp``: the law's parameters, each (n_sets, 1); ``lin = EJ_min (1 + i beta_material)`` (n_sets,).
-    Four law evaluations of ``n`` curvatures per set (plus one coarse scan): a grid uniform in
-    ``u = ln a`` with slopes, inverted by cubic Hermite interpolation of ``u(y)``, then ``K`` and
-    its slope at those curvatures, moved to the uniform nodes by one Taylor step (the residual
-    ``y(u) - y_j`` is ~1e-6, its square negligible).
+    A coarse scan finds the law's transition (the curvature where the slip part has lost half its
+    stuck value); ``n`` nodes uniform in ``ln a`` span ``decades`` either side of it. Two law
+    evaluations of ``n`` curvatures per set (``EJ*`` and a forward difference for its slope): the
+    nodes' moments ``m = a |EJ*(a)|`` need no inversion.
     """
     s = lin.size
     rows = np.arange(s)
@@ -198,45 +247,18 @@ def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float)
     u_mid = np.log(_SCAN[k - 1]) + frac * np.log(_SCAN[1] / _SCAN[0])
 
     span = decades * np.log(10.0)
-    u_pre = u_mid[:, None] + np.linspace(-span, span, n)[None, :]
-    e, de = _rigidity_and_slope(law, lp, lin, u_pre)
-    y_pre = 2.0 * (u_pre + np.log(np.abs(e)))
+    u = u_mid[:, None] + np.linspace(-span, span, n)[None, :]
+    e = lin[:, None] + law.slip_rigidity(np.exp(u), **lp)
+    de = (lin[:, None] + law.slip_rigidity(np.exp(u + _FD_LOG_STEP), **lp) - e) / _FD_LOG_STEP
+    y = 2.0 * (u + np.log(np.abs(e)))
     dy_du = 2.0 * (1.0 + (de / e).real)
-    monotone = np.all(dy_du > 0, axis=1) & np.all(np.diff(y_pre, axis=1) > 0, axis=1)
-    dy_du = np.where(dy_du > 0, dy_du, 1.0)
-    y0, y1 = y_pre[:, 0], y_pre[:, -1]
-    h = (y1 - y0) / (n - 1)
-    y_t = y0[:, None] + h[:, None] * np.arange(n)[None, :]
-    # interval of each target among the pre-grid's nodes: one search over all rows (row offsets)
-    z = (y_pre - y0[:, None]) / (y1 - y0)[:, None] + 2.0 * rows[:, None]
-    zt = np.linspace(0.0, 1.0, n)[None, :] + 2.0 * rows[:, None]
-    idx = np.searchsorted(z.ravel(), zt.ravel(), side="right").reshape(s, n) - 1 - n * rows[:, None]
-    idx = idx.clip(0, n - 2)
-    ya, yb = np.take_along_axis(y_pre, idx, 1), np.take_along_axis(y_pre, idx + 1, 1)
-    ua, ub = np.take_along_axis(u_pre, idx, 1), np.take_along_axis(u_pre, idx + 1, 1)
-    hy = np.where(yb > ya, yb - ya, 1.0)
-    ga, gb = 1.0 / np.take_along_axis(dy_du, idx, 1), 1.0 / np.take_along_axis(dy_du, idx + 1, 1)
-    t = np.clip((y_t - ya) / hy, 0.0, 1.0)
-    t2, t3 = t * t, t * t * t
-    u = (ua * (2 * t3 - 3 * t2 + 1) + ub * (3 * t2 - 2 * t3)
-         + hy * (ga * (t3 - 2 * t2 + t) + gb * (t3 - t2)))
-
-    e, de = _rigidity_and_slope(law, lp, lin, u)
     kk = 1.0 / e
-    dk_dy = -de / (e * e) / (2.0 * (1.0 + (de / e).real))
-    kk = kk - dk_dy * (2.0 * (u + np.log(np.abs(e))) - y_t)  # onto the uniform node
-    ka, kb, da, db = kk[:, :-1], kk[:, 1:], h[:, None] * dk_dy[:, :-1], h[:, None] * dk_dy[:, 1:]
-    c = np.stack([ka, da, 3 * (kb - ka) - 2 * da - db, 2 * (ka - kb) + da + db], axis=-1)
-    coef = np.ascontiguousarray(np.concatenate([c.real, c.imag], axis=-1).reshape(-1, 8).T)
+    dk = -de / (e * e) / np.where(dy_du > 0, dy_du, 1.0)
     refs = np.stack([1.0 / (lin + stuck), 1.0 / lin], axis=1)
-    ends = kk[:, [0, -1]]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rates = dk_dy[:, [0, -1]] / (ends - refs)
-    # a tail must decay towards its limit; otherwise hold the end value
-    ok = np.isfinite(rates) & (np.array([1.0, -1.0]) * rates.real > 0)
-    rates = np.where(ok, rates, 0.0)
-    return _Compliance(coef=coef, y0=y0, inv_h=1.0 / h, n=n, ends=ends, refs=refs, rates=rates,
-                       monotone=monotone & np.all(np.isfinite(coef.reshape(8, s, -1)), axis=(0, 2)))
+    table = _hermite_table(y, kk, dk, refs)
+    monotone = (np.all(dy_du > 0, axis=1) & np.all(np.diff(y, axis=1) > 0, axis=1)
+                & np.all(np.isfinite(table.coef.reshape(9, s, -1)), axis=(0, 2)))
+    return replace(table, monotone=monotone)
 
 
 class _Work:
@@ -261,73 +283,79 @@ class _Work:
         return buf[:n].reshape(shape)
 
 
-def _lookup(table: _Compliance, m2, row, y0ih, inv_h, out=None, log=True):
+def _lookup(table: _Compliance, m2, row, out=None, log=True):
     """Section compliance and its slope from the table.
 
-    ``m2 = |M|^2`` [(N m)^2], shape (..., b); ``row`` (b,) the set of each entry, ``y0ih = y0 inv_h``
-    and ``inv_h`` per entry (``log=False``: ``m2`` is ``ln |M|^2`` already). Returns ``(Kr, Ki, Dr, Di)`` (written into ``out``, four arrays of
-    m2's shape, when given), ``D = dK/dt = dK/dy / inv_h`` (the slope in the table's local
-    coordinate; multiply by ``inv_h`` for ``dK/dy``). Scratch from :class:`_Work`.
+    ``m2 = |M|^2`` [(N m)^2], shape (..., b) (``log=False``: ``ln |M|^2`` already); ``row`` (b,)
+    the parameter set of each entry. Returns ``(Kr, Ki, Dr, Di)``, ``D = dK/dy`` (written into
+    ``out``, four arrays of m2's shape, when given). Scratch from :class:`_Work`.
     """
-    n = table.n
     shape = m2.shape
-    x, t, jf = (_Work.get(name, shape) for name in ("x", "t", "jf"))
+    y, x = _Work.get("y", shape), _Work.get("x", shape)
     if log:
         with np.errstate(divide="ignore"):
-            np.log(m2, out=x)
-        x *= inv_h
+            np.log(m2, out=y)
     else:
-        np.multiply(m2, inv_h, out=x)
-    x -= y0ih
-    np.clip(x, 0.0, n - 1 - 1e-9, out=t)
-    np.floor(t, out=jf)
-    t -= jf
+        y[...] = m2
+    # bucket, its first interval, then the comparisons with the next node
+    y0, inv_w, offset = table.per_entry(row)
+    np.subtract(y, y0, out=x)
+    x *= inv_w
+    outside = x.min() < 0.0 or x.max() > table.n_buckets
+    if outside:
+        below, above = np.nonzero(x < 0.0), np.nonzero(x > table.n_buckets)
+    np.clip(x, 0.0, table.n_buckets - 1, out=x)
     j = _Work.get("j", shape, np.intp)
-    np.copyto(j, jf, casting="unsafe")
-    j += row * (n - 1)
-    cf = _Work.get("cf", (8,) + shape)
-    np.take(table.coef, j, axis=1, mode="clip", out=cf)  # one contiguous array per coefficient
+    np.copyto(j, x, casting="unsafe")
+    j += offset
+    np.take(table.first, j, out=j)
+    for _ in range(table.steps):
+        np.take(table.upper, j, out=x)
+        j += y >= x
+    cf = _Work.get("cf", (9,) + shape)
+    np.take(table.coef, j, axis=1, out=cf)  # one contiguous array per coefficient
+    v = cf[8]
+    np.subtract(y, v, out=v)
     out = tuple(np.empty(shape) for _ in range(4)) if out is None else out
-    tmp = jf
+    tmp = x
     for c0, c1, c2, c3, k, d in ((cf[0], cf[1], cf[2], cf[3], out[0], out[2]),
                                  (cf[4], cf[5], cf[6], cf[7], out[1], out[3])):
-        # Horner in place: h1 = c3 t + c2, h2 = h1 t + c1, K = h2 t + c0; K' = h2 + t (2 h1 - c2)
-        c3 *= t
+        # Horner in place: h1 = c3 v + c2, h2 = h1 v + c1, K = h2 v + c0; dK/dy = h2 + v (2 h1 - c2)
+        c3 *= v
         c3 += c2
-        np.multiply(c3, t, out=tmp)
+        np.multiply(c3, v, out=tmp)
         c1 += tmp
-        np.multiply(c1, t, out=k)
+        np.multiply(c1, v, out=k)
         k += c0
         c3 *= 2.0
         c3 -= c2
-        c3 *= t
+        c3 *= v
         np.add(c3, c1, out=d)
-    if x.min() < 0.0 or x.max() > n - 1:
-        _tails(table, x, row, inv_h, out)
+    if outside:
+        _tails(table, y, row, out, below, above)
     return out
 
 
-def _tails(table, x, row, inv_h, out):
-    """Beyond the table, in place: ``K = k_ref + (K_end - k_ref) exp(p (y - y_end))``.
+def _tails(table, y, row, out, below, above):
+    """Beyond the nodes, in place: ``K = k_ref + (K_end - k_ref) exp(p (y - y_end))``.
 
-    ``x`` (..., b) the table coordinate of each section; ``out`` the four (Kr, Ki, Dr, Di) arrays.
+    ``y`` (..., b) the sections' ``ln |M|^2``; ``out`` the four (Kr, Ki, Dr, Di) arrays; ``below``,
+    ``above`` the index tuples of the sections beyond the first and the last node.
     """
-    n = table.n
-    where = np.nonzero((x < 0.0) | (x > n - 1))
-    xs = x[where]
-    b = where[-1]
-    r, ih = row[b], inv_h[b]
-    side = (xs > 0).astype(np.intp)
-    ref = table.refs[r, side]
-    gap = table.ends[r, side] - ref
-    rate = table.rates[r, side]
-    with np.errstate(over="ignore", invalid="ignore"):
-        e = gap * np.exp(rate * ((xs - side * (n - 1)) / ih))
-    e = np.where(np.isfinite(e), e, 0.0)
-    k = ref + e
-    d = rate * e / ih
-    for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
-        dst[where] = src
+    for side, edge, where in ((0, table.y0, below), (1, table.y_end, above)):
+        if not where[0].size:
+            continue
+        r = row[where[-1]]
+        ref = table.refs[r, side]
+        gap = table.ends[r, side] - ref
+        rate = table.rates[r, side]
+        with np.errstate(over="ignore", invalid="ignore"):
+            e = gap * np.exp(rate * (y[where] - edge[r]))
+        e = np.where(np.isfinite(e), e, 0.0)
+        k = ref + e
+        d = rate * e
+        for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
+            dst[where] = src
 
 
 def _widely_solve(x, y, r):
@@ -369,14 +397,12 @@ class _Arms:
     nc: np.ndarray  # (2, b): N c, c = omega^2 diag(L, 1) (M_node q_rigid + M_node,clamp q_clamp)
     force: tuple  # (fa, fb, fc) real
     row: np.ndarray  # table row (parameter set) of each entry, intp
-    inv_h: np.ndarray
-    y0ih: np.ndarray
     length: np.ndarray  # arm length [m]
 
     def take(self, idx):
         """The constants of the entries ``idx``."""
-        return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force), row=self.row[idx], inv_h=self.inv_h[idx],
-                     y0ih=self.y0ih[idx], length=self.length[idx])
+        return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force),
+                     row=self.row[idx], length=self.length[idx])
 
 
 def _gauss(q: int):
@@ -409,7 +435,7 @@ class CableState:
         Two steady states were found at this line (with ``continuation``; the sweep's branch is
         returned). Always False without continuation.
     residual : ndarray, shape (n_sets, n_freq)
-        Relative size of the last Newton step (max over the arms).
+        Estimated relative error of the loads ``P`` (max over the arms; see :attr:`CableModel.tol`).
     iterations : int
         Newton iterations (the largest per entry), summed over the passes.
     sections : ndarray, shape (sections,)
@@ -455,14 +481,14 @@ class CableModel:
     sections : int
         Gauss-Legendre sections per arm.
     table_points : int
-        Nodes of each set's compliance table (uniform in ``ln |M|``).
+        Nodes of each set's compliance table (uniform in the curvature's log).
     table_decades : float
         The table spans this many decades of curvature either side of the law's transition.
     max_iter : int
         Newton iteration budget per pass (fixed: the model is a deterministic function).
     tol : float
-        Converged when the Newton step is below ``tol`` relative to ``|P|`` (the step is then taken:
-        the error left is of order ``tol^2``).
+        Converged when the relative error of ``P`` left after a Newton step, estimated from the
+        quadratic convergence of the last two steps, is below ``tol``.
     fold_tol : float
         Two solutions of one line are distinct when their loads differ by more than this (relative).
     """
@@ -540,14 +566,12 @@ class CableModel:
         fa, fb = -(1.0 + u0) / L, -u1
         fc = -w2 * cm * (156 * w0 + 22 * L * t0) + w2 * (u0 * (b00 * w0 + b01 * t0) + u1 * (b10 * w0 + b11 * t0))
         row = np.broadcast_to(np.arange(n_sets)[:, None, None], (n_sets, nf, 2)).reshape(-1)
-        inv_h = table.inv_h[row]
-        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, inv_h=inv_h,
-                     y0ih=table.y0[row] * inv_h, length=L)
+        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L)
 
     # --- Newton on the node loads ---------------------------------------------------------------
 
     def _sums(self, table, arms: _Arms, p0, p1):
-        """Section moments of K, dK/dt and (dK/dt) / |M|^2 against the weights ``w eta^k``.
+        """Section moments of K, dK/dy and (dK/dy) / |M|^2 against the weights ``w eta^k``.
 
         Returns (sk, sd, se): complex arrays of shape (3, b), (3, b), (5, b), row k holding the
         weight ``w eta^(2-k)`` (sk, sd) or ``w eta^(4-k)`` (se); and the sections' (Kr, Ki, |M|^-2),
@@ -562,7 +586,7 @@ class CableModel:
         m2 *= eta[:, None]
         m2 += p1.real**2 + p1.imag**2
         kd = _Work.get("kd", (q, 4, b))  # Kr, Ki, Dr, Di: one block for one matrix product
-        _lookup(table, m2, arms.row, arms.y0ih, arms.inv_h, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
+        _lookup(table, m2, arms.row, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
         np.maximum(m2, _TINY, out=m2)
         np.reciprocal(m2, out=m2)
         e = _Work.get("e", (q, 2, b))
@@ -591,12 +615,11 @@ class CableModel:
         r[1] += x[2] * p1
         np.subtract(arms.nc, r, out=r)
         # dS = A dp + B conj(dp): A = sum w l l^T (K + dK/dy), B = sum w l l^T (M^2/|M|^2) dK/dy
-        sd *= arms.inv_h
         x -= sd
         y = np.multiply(p0 * p0, se[:3], out=sd)
         y += (2.0 * p0 * p1) * se[1:4]
         y += (p1 * p1) * se[2:]
-        y *= -arms.inv_h
+        np.negative(y, out=y)
         return r, x, y, sec
 
     @staticmethod
@@ -613,66 +636,79 @@ class CableModel:
 
         A relaxed fixed point in ``z = ln(mean |M|^2)`` from the fully slipped cable:
         ``z <- (1 - r) z + r ln(mean |M(K(z))|^2)``; a few steps put the loads on the right scale
-        (they may be 10x the slipped cable's near a resonance of the partly stuck one).
+        (they may be 10x the slipped cable's near a resonance of the partly stuck one). With one
+        compliance K the loads are ``(a, b) / det`` with ``a, b, det`` polynomials in K (below).
         """
-        p = self._uniform_start(arms, table.refs[arms.row, 1])
+        n00, n01, n11 = arms.n
+        c0, c1 = arms.nc
+        # (N - K U) p = N c, U = [[1/3, 1/2], [1/2, 1]]: det = d0 - d1 K + K^2 / 12,
+        # p0 det = e0 - e1 K, p1 det = f0 - f1 K
+        d0, d1 = n00 * n11 - n01 * n01, n00 + n11 / 3.0 - n01
+        e0, e1 = n11 * c0 - n01 * c1, c0 - c1 / 2.0
+        f0, f1 = n00 * c1 - n01 * c0, c1 / 3.0 - c0 / 2.0
+        k = table.refs[arms.row, 1]
         z = None
-        for _ in range(_START_STEPS):
-            p0, p1 = p
+        for it in range(_START_STEPS + 1):
+            a, b = e0 - e1 * k, f0 - f1 * k
+            if it == _START_STEPS:
+                break
+            det = d0 + k * (k / 12.0 - d1)
             # mean of |p0 eta + p1|^2 over eta in [0, 1]
-            znew = np.log(np.maximum((p0.real**2 + p0.imag**2) / 3.0 + (p0.real * p1.real + p0.imag * p1.imag)
-                                     + p1.real**2 + p1.imag**2, _TINY))
+            m2 = ((a.real**2 + a.imag**2) / 3.0 + (a.real * b.real + a.imag * b.imag) + b.real**2 + b.imag**2)
+            znew = np.log(np.maximum(m2, _TINY) / np.maximum(det.real**2 + det.imag**2, _TINY))
             z = znew if z is None else z + _START_RELAX * (znew - z)
-            kr, ki, _, _ = _lookup(table, z[None, :], arms.row, arms.y0ih, arms.inv_h, log=False)
-            p = self._uniform_start(arms, kr[0] + 1j * ki[0])
-        return p
+            kr, ki, _, _ = _lookup(table, z[None, :], arms.row, log=False)
+            k = kr[0] + 1j * ki[0]
+        det = d0 + k * (k / 12.0 - d1)
+        return np.stack([a, b]) / det
 
-    def _newton(self, table, arms: _Arms, p, sections=True):
+    def _newton(self, table, arms: _Arms, p):
         """Damped Newton from ``p`` (2, b) for every entry; converged entries leave the batch.
 
         A step is at most half of ``|p|`` (far from the solution the widely linear model is poor),
-        and an entry whose residual grew halves its later steps until it falls again. Returns
-        (p (2, b), step, iterations per entry, K per section (Q, b) complex, |M|^-2 (Q, b)), the
-        sections those of the last evaluation (before the last step, which is below ``tol``; not
-        kept with ``sections=False``: None).
+        and an entry whose residual grew halves its later steps until it falls again. An entry
+        leaves once the error left after its step, estimated from the quadratic convergence of its
+        last two full steps (``s_k^3 / s_k-1^2``, relative to ``|p|``), is below ``tol``: the step is
+        taken, its residual not evaluated. Returns (p (2, b), error estimate, iterations per entry).
         """
-        q, b = int(self.sections), p.shape[1]
+        b = p.shape[1]
         p = p.astype(complex)
-        step = np.full(b, np.inf)
+        error = np.full(b, np.inf)
         its = np.zeros(b, dtype=int)
-        ksec = np.empty((q, b), dtype=complex) if sections else None
-        inv_m2 = np.empty((q, b)) if sections else None
-        damping = np.ones(b)
-        merit = np.full(b, np.inf)
-        active = np.arange(b)
+        # the active entries, compacted: global index, loads, step factor, merit, last full step
+        idx, pa = np.arange(b), p.copy()
+        damping, merit, last = np.ones(b), np.full(b, np.inf), np.full(b, np.inf)
         sub = arms
         for it in range(self.max_iter):
-            pa = p[:, active]
-            r, x, y, (kr, ki, im2) = self._residual(table, sub, pa)
+            r, x, y, _ = self._residual(table, sub, pa)
             d = _widely_solve(x, y, r)
-            norm2 = (pa.real**2 + pa.imag**2).sum(axis=0)
-            size = np.sqrt((d.real**2 + d.imag**2).sum(axis=0) / np.maximum(norm2, _TINY))
-            ok = np.isfinite(size)
+            size = np.sqrt((d.real**2 + d.imag**2).sum(axis=0)
+                           / np.maximum((pa.real**2 + pa.imag**2).sum(axis=0), _TINY))
             f = (r.real**2 + r.imag**2).sum(axis=0)
-            lam = np.where(f > merit[active], 0.5 * damping[active], np.minimum(1.0, 2.0 * damping[active]))
-            damping[active], merit[active] = lam, f
-            lam = np.where(ok, np.minimum(lam, _STEP_CAP / np.maximum(size, _TINY)), 0.0)
-            p[:, active] = pa + lam * np.where(ok, d, 0.0)
-            step[active] = np.where(ok, size, np.inf)
-            its[active] += 1
-            done = ok & (size < self.tol)
-            leave = done if it < self.max_iter - 1 else np.ones(done.shape, dtype=bool)
-            if sections and leave.any():
-                gone = active[leave]
-                ksec.real[:, gone] = kr[:, leave]
-                ksec.imag[:, gone] = ki[:, leave]
-                inv_m2[:, gone] = im2[:, leave]
-            if leave.all():
+            damping = np.where(f > merit, 0.5 * damping, np.minimum(1.0, 2.0 * damping))
+            merit = f
+            ok = np.isfinite(size)
+            lam = np.where(ok, np.minimum(damping, _STEP_CAP / np.maximum(size, _TINY)), 0.0)
+            d *= lam
+            d[:, ~ok] = 0.0
+            pa += d
+            # error left after this step: quadratic convergence from the last full step, else the step
+            full = lam == 1.0
+            quadratic = full & (size < 1e-3) & (size < last)
+            err = np.where(quadratic, size * (size / np.where(quadratic, last, 1.0)) ** 2, size)
+            err[~full] = np.inf
+            last = np.where(full, size, np.inf)
+            done = err < self.tol if it < self.max_iter - 1 else np.ones(err.shape, dtype=bool)
+            if not done.any():
+                continue
+            gone = idx[done]
+            p[:, gone], error[gone], its[gone] = pa[:, done], err[done], it + 1
+            keep = ~done
+            if not keep.any():
                 break
-            if leave.any():
-                active = active[~leave]
-                sub = arms.take(active)
-        return p, step, its, ksec, inv_m2
+            idx, pa, damping, merit, last = idx[keep], pa[:, keep], damping[keep], merit[keep], last[keep]
+            sub = arms.take(idx)
+        return p, error, its
 
     # --- public -------------------------------------------------------------------------------
 
@@ -730,8 +766,7 @@ class CableModel:
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
         arms = self._arms(p, n_sets, omega, x0, table)
-        sections = full or continuation
-        sol = self._newton(table, arms, self._start(table, arms), sections)
+        sol = self._newton(table, arms, self._start(table, arms))
         iterations = int(sol[2].max())
         fold = np.zeros((n_sets, f.size), dtype=bool)
         if continuation and f.size > 1:
@@ -751,7 +786,9 @@ class CableModel:
         return np.broadcast_to(force / x0[None, :] + body, (n_sets, omega.size)).copy()
 
     def _assemble(self, table, arms, sol, fold, iterations, p, n_sets, omega, x0) -> CableState:
-        (p0, p1), step, _, ksec, inv_m2 = sol
+        (p0, p1), step, _ = sol
+        _, _, _, (kr, ki, inv_m2) = self._sums(table, arms, p0, p1)  # the sections at the loads returned
+        ksec = kr + 1j * ki
         nf = omega.size
         f_uu = self._f_uu(arms, sol[0], p, n_sets, omega, x0)
 
@@ -766,7 +803,7 @@ class CableModel:
         a2 = p0.real**2 + p0.imag**2
         eta = np.clip(-(p0 * np.conj(p1)).real / np.maximum(a2, _TINY), 0.0, 1.0)
         m2 = np.abs(np.stack([p1, p0 + p1, p0 * eta + p1])) ** 2
-        kr, ki, _, _ = _lookup(table, m2, arms.row, arms.y0ih, arms.inv_h)
+        kr, ki, _, _ = _lookup(table, m2, arms.row)
         ends = per_line(np.sqrt(m2) * np.hypot(kr, ki)).reshape(n_sets, nf, -1)
         step = step.reshape(n_sets, nf, 2).max(axis=-1)
         return CableState(f_uu=f_uu, load=load, curvature=curvature, rigidity=per_line(1.0 / ksec),
@@ -797,55 +834,71 @@ class CableModel:
         return CableState(**out, iterations=iterations, sections=1.0 - self._rule[0])
 
     def _continuation(self, table, arms, sol, seg, n_sets, nf):
-        """Check every line against restarts from its predecessor and from the stuck cable; where
-        two steady states exist, flag the line and follow the sweep's branch line by line."""
+        """Follow a sweep up each test: a line's answer is the steady state reached from its
+        predecessor's. Every line is re-solved from its predecessor's first-pass state and from the
+        stuck cable at once; lines where two converged states differ are flagged; where the sweep's
+        state differs from the first pass, the following lines are re-solved in sweep order from
+        their predecessors until the sweep rejoins the first pass."""
         shape = (n_sets, nf, 2)
+        lines = np.arange(n_sets * nf * 2).reshape(shape)
         first = np.concatenate([[True], seg[1:] != seg[:-1]])
-        prev = np.roll(np.arange(n_sets * nf * 2).reshape(shape), 1, axis=1)
-        prev[:, first] = np.arange(n_sets * nf * 2).reshape(shape)[:, first]
+        prev = np.roll(lines, 1, axis=1)
+        prev[:, first] = lines[:, first]
         again = self._newton(table, arms, sol[0][:, prev.reshape(-1)])
         stuck = self._newton(table, arms, self._uniform_start(arms, table.refs[arms.row, 0]))
         iterations = int(again[2].max()) + int(stuck[2].max())
 
-        def differs(a, b, lines=(n_sets, nf)):
-            """Per line: both converged on an arm and their loads differ there."""
-            gap = np.sqrt((np.abs(a[0] - b[0]) ** 2).sum(axis=0))
-            d = (gap > self.fold_tol * np.sqrt((np.abs(a[0]) ** 2).sum(axis=0))) & (a[1] < self.tol) & (b[1] < self.tol)
-            return d.reshape(*lines, 2).any(axis=-1)
+        def converged(a, n=n_sets):
+            return (a[1] < self.tol).reshape(n, -1, 2).all(axis=-1)
 
-        diff = differs(sol, again)
-        diff[:, first] = False
-        fold = diff | differs(sol, stuck) | differs(again, stuck)
-        if not diff.any():
-            return sol, fold, iterations
-        # in sweep order from the first line with two states: take the restart's solution, and
-        # re-solve a line from its (changed) predecessor until the sweep rejoins the first pass
+        def differs(a, b, n=n_sets):
+            """Per line: converged in both and the loads differ on an arm."""
+            gap = np.sqrt((np.abs(a[0] - b[0]) ** 2).sum(axis=0))
+            d = (gap > self.fold_tol * np.sqrt((np.abs(a[0]) ** 2).sum(axis=0))).reshape(n, -1, 2).any(axis=-1)
+            return d & converged(a, n) & converged(b, n)
+
+        fold = differs(sol, again) | differs(sol, stuck) | differs(again, stuck)
+        fold[:, first] &= differs(sol, stuck)[:, first]
         out = [v.copy() for v in sol]
-        lines = np.arange(n_sets * nf * 2).reshape(shape)
 
         def put(idx, src, at):
             for dst, v in zip(out, src):
                 dst[..., idx] = v[..., at]
 
-        changed = np.zeros(n_sets, dtype=bool)
+        # where the first pass did not converge, the stuck start may have
+        rescue = converged(stuck) & ~converged(sol)
+        if rescue.any():
+            idx = lines[rescue].reshape(-1)
+            put(idx, stuck, idx)
+        # the sweep takes the restart from its predecessor where that converged to another state
+        # (or where the first pass did not converge)
+        take = converged(again) & (differs(sol, again) | ~converged(sol))
+        take[:, first] = False
+        if not take.any():
+            return tuple(out), fold, iterations
+
+        changed = np.zeros(n_sets, dtype=bool)  # the sweep's state at the previous line is not the first pass's
         for k in range(nf):
             if first[k]:
                 changed[:] = False
                 continue
-            take = diff[:, k] & ~changed  # predecessor as in the second pass: its result stands
-            if take.any():
-                idx = lines[take, k].reshape(-1)
+            now = take[:, k] & ~changed  # predecessor as in the restart pass: its result stands
+            if now.any():
+                idx = lines[now, k].reshape(-1)
                 put(idx, again, idx)
             if changed.any():
                 sets = np.flatnonzero(changed)
                 idx = lines[sets, k].reshape(-1)
                 new = self._newton(table, arms.take(idx), out[0][:, lines[sets, k - 1].reshape(-1)])
                 iterations += int(new[2].max())
-                now = differs([out[0][:, idx], out[1][idx]], new, (sets.size,))
-                fold[sets, k] |= now
-                put(idx, new, np.arange(idx.size))
-                changed[sets] = now
-            changed |= take
+                here = [out[0][:, idx], out[1][idx]]
+                moved = differs(new, here, sets.size)[:, 0] | (converged(new, sets.size) & ~converged(here, sets.size))[:, 0]
+                fold[sets, k] |= differs(new, here, sets.size)[:, 0]
+                use = np.repeat(converged(new, sets.size)[:, 0], 2)
+                put(idx[use], new, np.flatnonzero(use))
+                now = now.copy()
+                now[sets] = moved
+            changed = now
         return tuple(out), fold, iterations
 
 
