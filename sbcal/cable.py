@@ -303,7 +303,9 @@ def _lookup(table: _Compliance, m2, row, out=None, log=True):
     x *= inv_w
     outside = x.min() < 0.0 or x.max() > table.n_buckets
     if outside:
-        below, above = np.nonzero(x < 0.0), np.nonzero(x > table.n_buckets)
+        flat = x.reshape(-1)
+        where = np.flatnonzero((flat < 0.0) | (flat > table.n_buckets))
+        side = flat[where] > 0.0
     np.clip(x, 0.0, table.n_buckets - 1, out=x)
     j = _Work.get("j", shape, np.intp)
     np.copyto(j, x, casting="unsafe")
@@ -332,30 +334,30 @@ def _lookup(table: _Compliance, m2, row, out=None, log=True):
         c3 *= v
         np.add(c3, c1, out=d)
     if outside:
-        _tails(table, y, row, out, below, above)
+        _tails(table, y, row, out, where, side)
     return out
 
 
-def _tails(table, y, row, out, below, above):
+def _tails(table, y, row, out, where, side):
     """Beyond the nodes, in place: ``K = k_ref + (K_end - k_ref) exp(p (y - y_end))``.
 
-    ``y`` (..., b) the sections' ``ln |M|^2``; ``out`` the four (Kr, Ki, Dr, Di) arrays; ``below``,
-    ``above`` the index tuples of the sections beyond the first and the last node.
+    ``y`` (..., b) the sections' ``ln |M|^2``; ``out`` the four (Kr, Ki, Dr, Di) arrays; ``where``
+    the flat indices of the sections beyond the nodes, ``side`` True above the last one.
     """
-    for side, edge, where in ((0, table.y0, below), (1, table.y_end, above)):
-        if not where[0].size:
-            continue
-        r = row[where[-1]]
-        ref = table.refs[r, side]
-        gap = table.ends[r, side] - ref
-        rate = table.rates[r, side]
-        with np.errstate(over="ignore", invalid="ignore"):
-            e = gap * np.exp(rate * (y[where] - edge[r]))
-        e = np.where(np.isfinite(e), e, 0.0)
-        k = ref + e
-        d = rate * e
-        for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
-            dst[where] = src
+    at = np.unravel_index(where, y.shape)
+    r = row[at[-1]]
+    side = side.astype(np.intp)
+    ref = table.refs[r, side]
+    gap = table.ends[r, side] - ref
+    rate = table.rates[r, side]
+    edge = np.where(side == 1, table.y_end[r], table.y0[r])
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = gap * np.exp(rate * (y[at] - edge))
+    e = np.where(np.isfinite(e), e, 0.0)
+    k = ref + e
+    d = rate * e
+    for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
+        dst[at] = src
 
 
 def _widely_solve(x, y, r):
@@ -499,7 +501,7 @@ class CableModel:
     table_decades: float = 3.0
     max_iter: int = 30
     tol: float = 1e-8
-    fold_tol: float = 1e-6
+    fold_tol: float = 1e-4
     _rule: tuple = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):

@@ -158,15 +158,15 @@ def test_a_fold_is_detected_with_continuation(damper1):
     f = np.arange(4.0, 40.0, 0.25)
     m = CableModel(_SofteningLaw())
     p = dict(EJ_min=4.0, beta_material=0.02, delta_EJ=20.0, chi_soft=3e-3)
-    up = m.state(damper1, f, 0.2, continuation=True, **p)
+    up = m.state(damper1, f, 0.1, continuation=True, **p)
     assert up.fold.any() and up.converged[up.fold].all()  # two steady states on those lines
-    assert not m.state(damper1, f, 0.2, **p).fold.any()  # no continuation, no check
+    assert not m.state(damper1, f, 0.1, **p).fold.any()  # no continuation, no check
     # the response is hysteretic there: a sweep down the grid (one test) lands elsewhere
-    down = m.state(damper1, f[::-1], 0.2, segments=np.zeros(f.size, dtype=int), continuation=True, **p)
+    down = m.state(damper1, f[::-1], 0.1, segments=np.zeros(f.size, dtype=int), continuation=True, **p)
     both = up.converged[0] & down.converged[0, ::-1]
     assert np.any(np.abs(down.f_uu[0, ::-1][both] / up.f_uu[0, both] - 1) > 1e-3)
     # a Masing law dissipates as it softens: no fold on the same cable
-    assert not CableModel(DahlLaw()).state(damper1, f, 0.2, continuation=True, **DAHL).fold.any()
+    assert not CableModel(DahlLaw()).state(damper1, f, 0.1, continuation=True, **DAHL).fold.any()
 
 
 def test_outside_the_domain_is_nan_and_bad_input_is_one_line(damper1):
