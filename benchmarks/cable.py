@@ -53,7 +53,7 @@ def breakdown(model, d, freq, amp, params, repeat):
     p, n_sets = _resolve(model.parameter_names, (), d, params)
     omega, x0 = 2 * np.pi * freq, amp / 2 * 1e-3
     table = model._table(p, n_sets)
-    arms = model._arms(p, n_sets, omega, x0, table)
+    arms = model._arms(p, n_sets, omega, x0)
     start = model._start(table, arms)
     sol = model._newton(table, arms, start)
 
@@ -63,7 +63,7 @@ def breakdown(model, d, freq, amp, params, repeat):
 
     times = {
         "compliance table": best_time(lambda: model._table(p, n_sets), repeat),
-        "arm constants": best_time(lambda: model._arms(p, n_sets, omega, x0, table), repeat),
+        "arm constants": best_time(lambda: model._arms(p, n_sets, omega, x0), repeat),
         "one-compliance start": best_time(lambda: model._start(table, arms), repeat),
         "Newton (all iterations)": best_time(lambda: model._newton(table, arms, start), repeat),
         "  one full residual + 2x2 solves": best_time(residual_and_solve, repeat),

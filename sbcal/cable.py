@@ -131,10 +131,9 @@ class _Compliance:
     Nodes uniform in the curvature ``u = ln a`` (j = 0 .. n - 1), so they crowd where the moment
     saturates while the curvature runs on (a uniform grid in ``y`` would step over that knee); on
     each interval ``[y_j, y_j+1]`` ``K`` is the cubic Hermite interpolant of the nodes' ``K`` and
-    ``dK/dy``, stored as power coefficients in ``y - y_j``. A
-    section finds its interval through a uniform grid of buckets in ``y`` (the first interval of
-    each bucket, then ``steps`` comparisons with the next node): a gather, no search. Beyond the
-    nodes, ``K -> k_ref + (K_end - k_ref) exp(p (y - y_end))`` with ``k_ref`` the stuck (below) or
+    ``dK/dy``, stored as power coefficients in ``y - y_j``. A section finds its interval through a
+    uniform grid of buckets in ``y`` (the first interval of each bucket, then ``steps`` comparisons
+    with the next node): gathers, no search. Beyond the nodes, ``K -> k_ref + (K_end - k_ref) exp(p (y - y_end))`` with ``k_ref`` the stuck (below) or
     fully slipped (above) compliance and ``p`` matching the end node's slope.
 
     Attributes
@@ -531,7 +530,7 @@ class CableModel:
         return _compliance_table(self.law, lp, lin, int(self.table_points), float(self.table_decades))
 
     @staticmethod
-    def _arms(p, n_sets, omega, x0, table: _Compliance) -> _Arms:
+    def _arms(p, n_sets, omega, x0) -> _Arms:
         """The per-entry constants (see :class:`_Arms`) from the damper's consistent mass matrices."""
         nf = omega.size
 
@@ -549,22 +548,22 @@ class CableModel:
         r = full(-p["rocking_rad_per_m"], p["rocking_rad_per_m"])
         cm = full(p["mu"], p["mu"]) * L / 420.0
         w2, xb = per_line(omega**2), per_line(x0)
-        # node block: end mass + consistent mass; node-clamp block; clamp row of the clamp blocks
-        n00, n01, n11 = m + 156 * cm, m * a - 22 * cm * L, J + m * a * a + 4 * cm * L * L
+        # the node's mass block (end mass + consistent cable mass) and its coupling to the clamp
+        m00, m01, m11 = m + 156 * cm, m * a - 22 * cm * L, J + m * a * a + 4 * cm * L * L
         b00, b01, b10, b11 = 54 * cm, 13 * cm * L, -13 * cm * L, -3 * cm * L * L
         w0, t0 = xb, r * xb
         wr, tr = w0 + L * t0, t0  # the node's rigid motion with the clamp
-        c0 = w2 * (n00 * wr + n01 * tr + b00 * w0 + b01 * t0)
-        c1 = w2 * (n01 * wr + n11 * tr + b10 * w0 + b11 * t0)
-        # N = Mm^-1 and N c: the node's mass block inverted (positive definite: m, J > 0 or mu > 0)
-        idet = 1.0 / (w2 * w2 * L**4 * (n00 * n11 - n01 * n01))
-        nn = np.stack([w2 * L * n11 * idet, -w2 * L**2 * n01 * idet, w2 * L**3 * n00 * idet])
+        c0 = w2 * (m00 * wr + m01 * tr + b00 * w0 + b01 * t0)
+        c1 = w2 * (m01 * wr + m11 * tr + b10 * w0 + b11 * t0)
+        # N = Mm^-1 and N c (the mass block is positive definite: m, J > 0 or mu > 0)
+        det = m00 * m11 - m01 * m01
+        idet = 1.0 / (w2 * w2 * L**4 * det)
+        nn = np.stack([w2 * L * m11 * idet, -w2 * L**2 * m01 * idet, w2 * L**3 * m00 * idet])
         nc = np.stack([nn[0] * L * c0 + nn[1] * c1, nn[1] * L * c0 + nn[2] * c1])
-        # vertical clamp force: -V - omega^2 (Maa q0 + Mab q)[0] with q = M_node^-1 (P / omega^2 - Mba q0)
-        # and Mab[0] = cm (54, -13 L): linear in P
-        idet = 1.0 / (n00 * n11 - n01 * n01)
-        u0 = (n11 * 54 * cm + n01 * 13 * cm * L) * idet
-        u1 = (-n01 * 54 * cm - n00 * 13 * cm * L) * idet
+        # vertical clamp force: -V - omega^2 (M_cc q_clamp + M_cn q)[0] with the node's motion
+        # q = M_node^-1 (P / omega^2 - M_nc q_clamp) and M_cn[0] = cm (54, -13 L): linear in P
+        u0 = (m11 * 54 * cm + m01 * 13 * cm * L) / det
+        u1 = (-m01 * 54 * cm - m00 * 13 * cm * L) / det
         fa, fb = -(1.0 + u0) / L, -u1
         fc = -w2 * cm * (156 * w0 + 22 * L * t0) + w2 * (u0 * (b00 * w0 + b01 * t0) + u1 * (b10 * w0 + b11 * t0))
         row = np.broadcast_to(np.arange(n_sets)[:, None, None], (n_sets, nf, 2)).reshape(-1)
@@ -767,7 +766,7 @@ class CableModel:
             return self._subset(damper, f, amp, seg, continuation, p, n_sets, valid, full)
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
-        arms = self._arms(p, n_sets, omega, x0, table)
+        arms = self._arms(p, n_sets, omega, x0)
         sol = self._newton(table, arms, self._start(table, arms))
         iterations = int(sol[2].max())
         fold = np.zeros((n_sets, f.size), dtype=bool)
