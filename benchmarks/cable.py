@@ -1,0 +1,117 @@
+"""Cable forward-model speed: the fast model against the element model and SlipModel, same run.
+
+Usage: python benchmarks/cable.py [--sets 16 32] [--repeat 7] [--element-repeat 2] [--no-element]
+
+The workload the sampler sees: parameter sets x the thesis's eight dry tests concatenated on the
+frequency axis (8 x 37 = 296 lines, each test's amplitude per line), one core. For each model it
+prints the best wall time of one ``dynamic_stiffness`` call, evaluations (sets x lines) per second,
+and the ratio to :class:`sbcal.extensions.SlipModel` (one element per arm at its rms curvature, 12
+Illinois steps) measured in the same run. Target (the cable issue): <= 10 ms for 16 sets x 296
+lines. Then, for the fast model at the first ``--sets``, where the time goes: the compliance
+table, the one-compliance start, the Newton iterations (mean and largest count per entry) and the
+cost of one full residual evaluation (section lookups, moments, the 2x2 solves).
+"""
+
+import argparse
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the target says
+
+import numpy as np  # noqa: E402
+
+from sbcal import STANDARD_GRID_HZ  # noqa: E402
+from sbcal.cable import CableModel, ElementCableModel, _resolve, _widely_solve  # noqa: E402
+from sbcal.damper import resolve_damper  # noqa: E402
+from sbcal.extensions import SlipModel  # noqa: E402
+from sbcal.hysteresis import DahlLaw, IwanLaw, LognormalIwanLaw  # noqa: E402
+from sbcal.virtual_bench import DEFAULT_TESTS, test_amplitude  # noqa: E402
+
+from _timing import best_time  # noqa: E402
+
+
+def workload(d, n, seed=0):
+    """Random parameter sets of each law (boxes like priors/cable.toml's) and SlipModel's."""
+    rng = np.random.default_rng(seed)
+    geometry = dict(a1=d.a1 * rng.uniform(0.95, 1.05, n), a2=d.a2 * rng.uniform(0.95, 1.05, n))
+    base = dict(EJ_min=rng.uniform(3, 7, n), beta_material=rng.uniform(0.02, 0.1, n), **geometry)
+    loguniform = lambda lo, hi: np.exp(rng.uniform(np.log(lo), np.log(hi), n))  # noqa: E731
+    laws = {
+        "dahl": (DahlLaw(), dict(base, delta_EJ=rng.uniform(30, 60, n), chi_dahl=loguniform(1e-3, 5e-3))),
+        "iwan": (IwanLaw(), dict(base, delta_EJ=rng.uniform(30, 60, n), chi_macro=loguniform(5e-3, 5e-2),
+                                 micro_exponent=rng.uniform(-0.7, 0.0, n), macro_ratio=rng.uniform(0.0, 0.5, n))),
+        "lognormal_iwan": (LognormalIwanLaw(), dict(base, delta_EJ=rng.uniform(30, 60, n),
+                                                    chi_median=loguniform(1e-3, 5e-3), log_spread=1.5)),
+    }
+    slip = dict(EJ_slip=rng.uniform(3, 7, n), EJ_stick=rng.uniform(30, 60, n), chi_slip=loguniform(1e-3, 5e-3),
+                slip_exponent=rng.uniform(0.8, 2, n), beta_material=rng.uniform(0.02, 0.1, n),
+                beta_friction=rng.uniform(0.2, 0.5, n), **geometry)
+    return laws, slip
+
+
+def breakdown(model, d, freq, amp, params, repeat):
+    """Best wall time of each phase of the fast model's solve [s], and the Newton's iteration counts."""
+    p, n_sets = _resolve(model.parameter_names, (), d, params)
+    omega, x0 = 2 * np.pi * freq, amp / 2 * 1e-3
+    table = model._table(p, n_sets)
+    arms = model._arms(p, n_sets, omega, x0)
+    start = model._start(table, arms)
+    sol = model._newton(table, arms, start)
+
+    def residual_and_solve():
+        r, x, y, _ = model._residual(table, arms, sol[0])
+        _widely_solve(x, y, r)
+
+    times = {
+        "compliance table": best_time(lambda: model._table(p, n_sets), repeat),
+        "arm constants": best_time(lambda: model._arms(p, n_sets, omega, x0), repeat),
+        "one-compliance start": best_time(lambda: model._start(table, arms), repeat),
+        "Newton (all iterations)": best_time(lambda: model._newton(table, arms, start), repeat),
+        "  one full residual + 2x2 solves": best_time(residual_and_solve, repeat),
+    }
+    return times, sol[2]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sets", type=int, nargs="+", default=[16, 32])
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--element-repeat", type=int, default=2)
+    ap.add_argument("--no-element", action="store_true", help="skip the (slow) element model")
+    args = ap.parse_args()
+
+    d = resolve_damper("damper1")
+    freq = np.concatenate([STANDARD_GRID_HZ] * len(DEFAULT_TESTS))
+    amp = np.concatenate([test_amplitude(t, STANDARD_GRID_HZ) for t in DEFAULT_TESTS])
+    slip_model = SlipModel(amp)
+    print(f"{freq.size} lines (the {len(DEFAULT_TESTS)} dry tests), damper1, one core; best of {args.repeat}")
+    print(f"{'model':34s} {'sets':>5s} {'ms/call':>9s} {'evals/s':>10s} {'x SlipModel':>12s}  notes")
+    for n in args.sets:
+        laws, slip = workload(d, n)
+        evals = n * freq.size
+        t_ref = best_time(lambda: slip_model(d, freq, **slip), args.repeat)
+        print(f"{'SlipModel (1 element, rms)':34s} {n:5d} {t_ref * 1e3:9.1f} {evals / t_ref:10.3g} {1.0:12.2f}")
+        for name, (law, params) in laws.items():
+            model = CableModel(law)
+            st = model.state(d, freq, amp, **params)
+            t = best_time(lambda: model.dynamic_stiffness(d, freq, amp, **params), args.repeat)
+            print(f"{'CableModel ' + name + f', Q={model.sections}':34s} {n:5d} {t * 1e3:9.1f} {evals / t:10.3g}"
+                  f" {t_ref / t:12.2f}  converged {st.converged.mean():.4f}")
+        if not args.no_element:
+            law, params = laws["dahl"]
+            element = ElementCableModel(law)
+            t = best_time(lambda: element.dynamic_stiffness(d, freq, amp, **params), args.element_repeat)
+            print(f"{'ElementCableModel dahl, N=' + str(element.n_elements):34s} {n:5d} {t * 1e3:9.1f}"
+                  f" {evals / t:10.3g} {t_ref / t:12.2f}")
+
+    n = args.sets[0]
+    laws, _ = workload(d, n)
+    print(f"\nwhere the fast model's time goes ({n} sets, {freq.size} lines; best of {args.repeat}):")
+    for name, (law, params) in laws.items():
+        times, its = breakdown(CableModel(law), d, freq, amp, params, args.repeat)
+        print(f"  {name}: Newton iterations per entry mean {its.mean():.2f}, largest {its.max()}")
+        for phase, t in times.items():
+            print(f"    {phase:34s} {t * 1e3:7.2f} ms")
+
+
+if __name__ == "__main__":
+    main()
