@@ -20,7 +20,7 @@ from .damper import Damper
 from .errors import InputError
 from .fem import PARAMETER_NAMES
 
-__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior"]
+__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "cable_prior"]
 
 _DISTS = ("uniform", "loguniform")
 _MODEL_ERROR = ("sigma_mag", "sigma_phase")
@@ -235,7 +235,7 @@ def load_prior(paramset: str, damper: Damper, path=None) -> Prior:
     return Prior.from_boxes(paramset, boxes)
 
 
-def extension_prior(effect: str, damper: Damper, path=None, base_path=None) -> Prior:
+def extension_prior(effect: str, damper: Damper, path=None, base_path=None, *, bundled: str = "extensions.toml") -> Prior:
     """The prior of a physics extension of ``sbcal diagnose`` (or of its ``baseline``).
 
     The extension keeps the ``base`` parameters of the default prior file (their boxes) and adds
@@ -247,11 +247,13 @@ def extension_prior(effect: str, damper: Damper, path=None, base_path=None) -> P
         ``"baseline"`` or a catalogue id (``priors/extensions.toml``).
     damper : Damper
     path : path-like, optional
-        An extensions file; default the bundled ``priors/extensions.toml``.
+        An extensions file; default the bundled ``priors/extensions.toml`` (``bundled``).
     base_path : path-like, optional
         The prior file of the ``base`` parameters; default ``priors/default.toml``.
+    bundled : str
+        The bundled file read when ``path`` is None (:func:`cable_prior` reads ``cable.toml``).
     """
-    doc, src = _read(path, "extensions.toml")
+    doc, src = _read(path, bundled)
     spec = doc.get(effect)
     if not isinstance(spec, dict):
         raise InputError(f"{src}: table '[{effect}]': missing")
@@ -270,3 +272,9 @@ def extension_prior(effect: str, damper: Damper, path=None, base_path=None) -> P
             raise InputError(f"{src}: key '{effect}.parameters.{n}': also a base parameter")
         boxes[n] = _bounds(src, f"{effect}.parameters.{n}", box, n, damper)
     return Prior.from_boxes(effect, boxes)
+
+
+def cable_prior(law: str, damper: Damper, path=None, base_path=None) -> Prior:
+    """The prior of a cable law family (``priors/cable.toml``): the cable's and the law's parameters
+    plus the ``base`` geometry of the default prior file (same schema as :func:`extension_prior`)."""
+    return extension_prior(law, damper, path, base_path, bundled="cable.toml")

@@ -1,0 +1,329 @@
+"""The cable law of a damper: one hysteresis law per cable state, fitted jointly over all its tests.
+
+A *cable state* is what a test label's suffix says (``1-1-oiled`` is the oiled cable; tests without
+a suffix are the ``dry`` cable). All tests of one state share one cable — ``EJ_min``,
+``beta_material`` and the law's parameters (:mod:`sbcal.hysteresis`) — and all tests of one damper
+share its geometry (the mass offsets ``a1``, ``a2``). The forward model is the distributed cable of
+:class:`sbcal.cable.CableModel` on the concatenated lines of the state's tests (each test's commanded
+amplitude per line; a sweep restarts at each test), the likelihood the noise-only multivariate t of
+every test's runs (:class:`sbcal.likelihood.TestLikelihood`, no discrepancy: the law must explain the
+runs within the bench's scatter), the posterior the engine's (:func:`sbcal.sampler.sample`). Families
+are compared by PSIS-LOO grouped by run (:func:`sbcal.stats.elpd_difference`).
+
+Measurement-chain effects can ride on top (``effects``: ``sensor_delay``, ``fixture_mass``,
+``base_rocking``, with the boxes of ``priors/extensions.toml``), one value per cable state: the
+diagnosis's secondary effects.
+
+Stored as ``<runs>/<damper>/cable-<state>/posterior.nc`` + ``summary.json`` (:func:`store_cable`).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .bench import remove_outlier_runs
+from .cable import DEFAULT_SECTIONS, CableModel, segments_from_frequencies
+from .calibrate import likelihood_for
+from .damper import Damper
+from .errors import InputError
+from .hysteresis import FITTED_LAWS, law_for
+from .likelihood import JointLikelihood
+from .priors import Prior, cable_prior, extension_prior
+from .sampler import SamplerConfig, sample
+from .stats import elpd_difference, loo
+
+__all__ = ["SECONDARY", "cable_state", "state_tests", "CableForward", "CableFit", "cable_likelihood", "fit_cable",
+           "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
+
+SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
+"""Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
+their parameters."""
+
+_LABEL = re.compile(r"^\d+(?:\.\d+)?-\d+(?:\.\d+)?(?:-(.+))?$")
+
+
+def cable_state(test: str) -> str:
+    """The cable state of a test label: its suffix after the amplitudes, ``dry`` without one."""
+    m = _LABEL.match(test)
+    return (m.group(1) or "dry") if m else test
+
+
+def state_tests(tests) -> dict:
+    """``{state: [tests]}`` in the order the tests come."""
+    out = {}
+    for t in tests:
+        out.setdefault(cable_state(t), []).append(t)
+    return out
+
+
+def cable_config(ndim: int, *, workers: int = 2, max_steps: int = 8000, max_draws: int = 250) -> SamplerConfig:
+    """The engine's settings for a cable fit (the policy is the engine's; a cap that keeps a stuck
+    fit within minutes: the cable model costs ~1 ms per parameter set)."""
+    return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps, max_draws=max_draws, first_steps=300,
+                         de_population=4 * ndim + 8, de_generations=60, workers=workers)
+
+
+@dataclass(frozen=True)
+class CableForward:
+    """The forward model of a cable state's joint likelihood (picklable).
+
+    ``CableForward(...)(damper, freq_hz, **params) -> complex (n, n_lines)`` on the concatenated lines.
+
+    Attributes
+    ----------
+    law : str
+        A family of :data:`sbcal.hysteresis.LAWS`.
+    amplitude_mm_pp : ndarray, shape (n_lines,)
+        Commanded amplitude per line [mm p-p].
+    segments : ndarray of int, shape (n_lines,)
+        Test index per line.
+    effects : tuple of str
+        Secondary effects of :data:`SECONDARY` applied on top.
+    sections : int
+        Gauss sections per arm of the cable model.
+    """
+
+    law: str
+    amplitude_mm_pp: np.ndarray
+    segments: np.ndarray
+    effects: tuple = ()
+    sections: int = DEFAULT_SECTIONS
+    model: CableModel = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "model", CableModel(law_for(self.law), sections=self.sections))
+
+    def _split(self, params):
+        chain = {k: params[k] for k in ("delay_s", "fixture_mass_kg") if k in params}
+        return {k: v for k, v in params.items() if k not in chain}, chain
+
+    def _measured(self, freq_hz, fuu, chain):
+        omega = 2 * np.pi * np.asarray(freq_hz, float)
+        if "fixture_mass_kg" in chain:
+            fuu = fuu - omega**2 * np.asarray(chain["fixture_mass_kg"], float).reshape(-1, 1)
+        if "delay_s" in chain:
+            fuu = fuu * np.exp(-1j * omega * np.asarray(chain["delay_s"], float).reshape(-1, 1))
+        return fuu
+
+    def __call__(self, damper: Damper, freq_hz, **params):
+        cable, chain = self._split(params)
+        fuu = self.model.dynamic_stiffness(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments, **cable)
+        return self._measured(freq_hz, fuu, chain)
+
+    def state(self, damper: Damper, freq_hz, *, continuation: bool = True, **params):
+        """The cable's steady state (sections, curvature range, folds) and the measured ``f``."""
+        cable, chain = self._split(params)
+        st = self.model.state(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments,
+                              continuation=continuation, **cable)
+        return st, self._measured(freq_hz, st.f_uu, chain)
+
+
+def _prior(law: str, damper: Damper, effects, prior_path=None) -> Prior:
+    """The cable family's boxes plus those of the secondary effects (one value per cable state)."""
+    base = cable_prior(law, damper, base_path=prior_path)
+    boxes = {n: base.box(n) for n in base.names}
+    for e in effects:
+        if e not in SECONDARY:
+            raise InputError(f"effect {e!r} does not compose with the cable model; known: {', '.join(SECONDARY)}")
+        ext = extension_prior(e, damper, base_path=prior_path)
+        for n in SECONDARY[e]:
+            boxes[n] = ext.box(n)
+    name = law + "".join(f"+{e}" for e in effects)
+    return Prior.from_boxes(name, boxes)
+
+
+def cable_likelihood(damper: Damper, bench, tests, law: str, *, effects=(), prior_path=None,
+                     z_threshold=None) -> JointLikelihood:
+    """The joint noise-only likelihood of one cable state's tests under a law family."""
+    tests = list(tests)
+    states = {cable_state(t) for t in tests}
+    if len(states) != 1:
+        raise InputError(f"a cable fit takes the tests of one cable state, got {', '.join(sorted(states))}")
+    prior = _prior(law, damper, tuple(effects), prior_path)
+    likes = []
+    for t in tests:
+        td = bench.test(damper.name, t)
+        cleaned = remove_outlier_runs(td) if z_threshold is None else remove_outlier_runs(td, z_threshold)
+        likes.append(likelihood_for(damper, cleaned.data, prior))
+    amp = np.concatenate([lk.amplitude_mm_pp for lk in likes])
+    seg = np.concatenate([np.full(lk.freq_hz.size, i) for i, lk in enumerate(likes)])
+    return JointLikelihood(likes, prior, CableForward(law, amp, seg, tuple(effects)))
+
+
+@dataclass(frozen=True)
+class CableFit:
+    """One cable state's posterior under one law family.
+
+    Attributes
+    ----------
+    damper, state, law : str
+    tests : tuple of str
+    effects : tuple of str
+    result : SampleResult
+    like : JointLikelihood
+    loo : sbcal.stats.Loo
+        PSIS-LOO grouped by run (runs of all tests, in test order).
+    """
+
+    damper: str
+    state: str
+    law: str
+    tests: tuple
+    effects: tuple
+    result: object
+    like: object
+    loo: object
+
+    def median(self) -> dict:
+        return {n: float(np.median(v)) for n, v in self.result.draws.items()}
+
+
+def fit_cable(damper: Damper, bench, tests, law: str, *, seed, effects=(), config: SamplerConfig | None = None,
+              start=None, prior_path=None, progress: str | None = None) -> CableFit:
+    """Sample one cable state's law (see the module docstring).
+
+    Parameters
+    ----------
+    damper : Damper
+    bench : BenchData
+    tests : sequence of str
+        The tests of one cable state.
+    law : str
+        A fitted family (:data:`sbcal.hysteresis.FITTED_LAWS`).
+    seed : int or numpy.random.SeedSequence
+    effects : sequence of str
+        Secondary effects on top (:data:`SECONDARY`).
+    config : SamplerConfig, optional
+        Default :func:`cable_config`.
+    start : dict, optional
+        Natural values by name to polish the mode from (default: a differential-evolution search).
+    prior_path : path-like, optional
+        The prior file of the base geometry boxes (``--priors``).
+    progress : str, optional
+    """
+    like = cable_likelihood(damper, bench, tests, law, effects=effects, prior_path=prior_path)
+    res = sample(like, seed=seed, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
+    return CableFit(damper=damper.name, state=cable_state(list(tests)[0]), law=law, tests=tuple(tests),
+                    effects=tuple(effects), result=res, like=like, loo=loo(res.log_likelihood))
+
+
+def compare_families(fits: dict) -> dict:
+    """The best family by PSIS-LOO summed over cable states, and each family's difference to it.
+
+    ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law). Returns
+    ``{"best": law, "families": {law: {"elpd", "se", "delta_elpd", "se_delta"}}}``.
+    """
+    pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
+    elpd = {law: float(p.sum()) for law, p in pointwise.items()}
+    best = max(elpd, key=elpd.get)
+    out = {}
+    for law, p in pointwise.items():
+        d, se = elpd_difference(pointwise[best], p)
+        out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se}
+    return {"best": best, "families": out}
+
+
+def law_curves(law: str, draws: dict, chi) -> tuple[np.ndarray, np.ndarray]:
+    """The cable law's equivalent rigidity ``Re EJ*`` [N m^2] and loss factor ``Im EJ* / Re EJ*`` at
+    curvature amplitudes ``chi`` [1/m], per posterior draw: two arrays (n_draws, len(chi))."""
+    names = law_for(law).parameter_names
+    chi = np.asarray(chi, float)[None, :]
+    col = {k: np.asarray(v, float).reshape(-1, 1) for k, v in draws.items()}
+    slip = law_for(law).slip_rigidity(chi, **{k: col[k] for k in names})
+    ej = col["EJ_min"] * (1 + 1j * col["beta_material"]) + slip
+    return ej.real, ej.imag / ej.real
+
+
+def _curvature_ranges(fit: CableFit) -> dict:
+    """Per test, the range of arm curvature amplitudes [1/m] the posterior median's steady state
+    reached over its lines, and the lines with two steady states (folds)."""
+    like = fit.like
+    med = {k: np.array([v]) for k, v in fit.median().items()}
+    st, _ = like.model.state(like.damper, like.freq_hz, continuation=True, **med)
+    out, start = {}, 0
+    for t, lk in zip(fit.tests, like.likes):
+        n = lk.freq_hz.size
+        cr = st.curvature_range[0, start:start + n]  # (lines, 2): least and largest over both arms
+        out[t] = {"curvature_min": float(cr[:, 0].min()), "curvature_max": float(cr[:, 1].max()),
+                  "fold_hz": [float(f) for f in lk.freq_hz[st.fold[0, start:start + n]]],
+                  "not_converged_hz": [float(f) for f in lk.freq_hz[~st.converged[0, start:start + n]]]}
+        start += n
+    return out
+
+
+def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None) -> dict:
+    """Write ``posterior.nc`` + ``summary.json`` of a cable fit into ``directory``; returns the summary.
+
+    The netCDF holds the posterior, the log-probability, the pointwise log-likelihood by run
+    (``runs``, dim ``obs`` with ``obs_test``/``obs_run`` coordinates), the lines (frequency, amplitude,
+    test) and the run means observed. The summary adds the law, the tests, each test's curvature range
+    and folds, the convergence and (with ``comparison``) the family comparison.
+    """
+    from ._io import write_json
+    from .runs import parameter_summary, versions, write_inference_data
+
+    res, like = fit.result, fit.like
+    obs_test = np.concatenate([np.full(lk.y.shape[1], t) for t, lk in zip(fit.tests, like.likes)])
+    freq = like.freq_hz
+    line_test = np.concatenate([np.full(lk.freq_hz.size, t) for t, lk in zip(fit.tests, like.likes)])
+    ybar = np.concatenate([lk.ybar for lk in like.likes], axis=1)
+    summary = {
+        "damper": fit.damper, "state": fit.state, "law": fit.law, "effects": list(fit.effects),
+        "tests": list(fit.tests), "parameters": parameter_summary(res), **res.convergence_dict(),
+        "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
+        "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
+        "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(), **meta,
+    }
+    groups = {
+        "posterior": dict(res.draws), "sample_stats": {"lp": res.log_prob}, "log_likelihood": {"runs": res.log_likelihood},
+        "constant_data": {"freq_hz": freq, "amplitude_mm_pp": like.model.amplitude_mm_pp, "line_test": line_test,
+                          "obs_test": obs_test},
+        "observed_data": {"logmag_mean": ybar[0], "phase_mean": ybar[1]},
+        "dims": {"runs": ["obs"], "freq_hz": ["line"], "amplitude_mm_pp": ["line"], "line_test": ["line"],
+                 "obs_test": ["obs"], "logmag_mean": ["line"], "phase_mean": ["line"]},
+    }
+    d = Path(directory)
+    write_inference_data(d / "posterior.nc", groups, attrs={"summary": json.dumps(summary, sort_keys=True)})
+    write_json(d / "summary.json", summary, indent=1)
+    return summary
+
+
+def read_cable(directory) -> tuple[dict, dict]:
+    """``(summary, draws)`` of a stored cable fit (``draws``: name -> flattened posterior draws)."""
+    from .runs import read_summary
+    from .stats import read_netcdf
+
+    s = read_summary(directory)
+    if s is None or "law" not in s:
+        raise InputError(f"{directory}: no cable-law run here (summary.json missing or not a cable fit; "
+                         "'sbcal cable' or 'sbcal run' writes one)")
+    post = read_netcdf(Path(directory) / "posterior.nc").posterior
+    return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
+
+
+def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=FITTED_LAWS, seed=0, prior_path=None,
+                     workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
+    """Every cable state of a damper under every family; ``(fits, comparison)`` with
+    ``fits[law][state]`` and the comparison of :func:`compare_families`."""
+    tests = list(bench.tests(damper.name) if tests is None else tests)
+    groups = state_tests(tests)
+    root = np.random.SeedSequence(seed)
+    fits = {}
+    for law, ss in zip(laws, root.spawn(len(laws))):
+        fits[law] = {}
+        for (state, members), s in zip(sorted(groups.items()), ss.spawn(len(groups))):
+            label = f"{damper.name} cable {state} ({law})" if progress else None
+            like = cable_likelihood(damper, bench, members, law, prior_path=prior_path)
+            fits[law][state] = fit_cable(damper, bench, members, law, seed=s, prior_path=prior_path, progress=label,
+                                         config=cable_config(like.prior.ndim, workers=workers))
+    return fits, compare_families(fits)
+
+
+def segments_of(likes) -> np.ndarray:
+    """Test index per concatenated line."""
+    return segments_from_frequencies(np.concatenate([lk.freq_hz for lk in likes]))
