@@ -267,7 +267,7 @@ _BW_SHARPNESS = (0.3, 5.0)  # the law's range of the exponent n
 _BW_TABLE_N = (0.25, 6.0)  # the table's, wider: a spline is least accurate in its end intervals
 _BW_XI = (-5.0, 9.2)  # table range of xi (below: micro-slip, corrections ~ a^2n < 5e-5; above: a > 1e4)
 _BW_XI_NODES = 201
-_BW_PSI_NODES = 36  # table nodes in psi = ln n + n / 2 (dense at small n, and at large n, where the knee sharpens)
+_BW_PSI_NODES = 36  # nodes in psi = ln n + n / 2: dense at small n, and at large n (the knee sharpens)
 _BW_TAIL = 40.0  # the profile is integrated until 1 - |P| ~ exp(-40)
 _BW_GAUSS = 48  # Gauss-Legendre nodes per piece of a branch
 
@@ -321,8 +321,8 @@ def _bouc_wen_harmonics(n: float, a) -> np.ndarray:
         Im = -2 / (pi a^2) int P(s) ds
 
     over the arc: Gauss-Legendre on each side of the zero ``s_c``, nodes mapped by
-    ``1 - (1 - tau^2)^8`` (smooth at the square-root end, clustered at ``s_c``, where ``|P|^n``
-    is not smooth). Beyond the profile's tail ``P = -1``.
+    ``1 - (1 - tau^2)^k`` (smooth at the square-root end, clustered at ``s_c``, where ``|P|^n``
+    is not smooth: ``k n >= 3``). Beyond the profile's tail ``P = -1``.
     """
     s_c, upper, lower = _bouc_wen_profile(n)
     s_tail = s_c + _BW_TAIL / n
@@ -407,16 +407,14 @@ def _bouc_wen_rigidity(a, n):
     y_im[inside] = spline_im.ev(xi[inside], psi[inside])
 
     def edge(mask, end):
-        """Value and slope in ln a of both splines at the table's end ``end``, and that end's ln a."""
-        nm, pm = n[mask], psi[mask]
-        v_end = _bw_v(_BW_XI[end], nm)
-        dxi = nm + (1.0 - nm) * special.expit(v_end)  # d xi / d ln a
-        return (v[mask] - v_end, nm, spline_re.ev(_BW_XI[end], pm), spline_re.ev(_BW_XI[end], pm, dx=1) * dxi,
-                spline_im.ev(_BW_XI[end], pm), spline_im.ev(_BW_XI[end], pm, dx=1) * dxi, v_end)
+        """The table's end ``end`` for the points ``mask``: its ln a, both splines' values there."""
+        v_end = _bw_v(_BW_XI[end], n[mask])
+        return v_end, v[mask] - v_end, spline_re.ev(_BW_XI[end], psi[mask]), spline_im.ev(_BW_XI[end], psi[mask])
 
     low = xi < _BW_XI[0]
     if low.any():
-        dv, nl, r0, _, i0, _, v_end = edge(low, 0)
+        v_end, dv, r0, i0 = edge(low, 0)
+        nl = n[low]
         # the exact leading terms, the next order's coefficient from the table's end value
         c_im = 4.0 / (np.pi * (nl + 2.0))
         k_re = 2 * nl / (np.pi * (nl + 1)) * (special.beta(1.5, nl / 2) - special.beta(1.5, nl + 0.5))
@@ -427,7 +425,9 @@ def _bouc_wen_rigidity(a, n):
         y_re[low] = np.log1p(-k_re * q * (1.0 + d_re * q))
     high = xi > _BW_XI[1]
     if high.any():
-        dv, _, r0, d_r, i0, _, v_end = edge(high, 1)
+        v_end, dv, r0, i0 = edge(high, 1)
+        nh = n[high]
+        d_r = spline_re.ev(_BW_XI[1], psi[high], dx=1) * (nh + (1.0 - nh) * special.expit(v_end))  # d/d ln a
         # ln Re = r0 - 1.5 dv + ln((1 + b e^-dv) / (1 + b)), b = B / a_end from the slope
         b = -(d_r + 1.5) / (1 + d_r + 1.5)
         y_re[high] = r0 - 1.5 * dv + np.log1p(b * np.exp(-dv)) - np.log1p(b)
@@ -447,10 +447,11 @@ class BoucWenLaw(HysteresisLaw):
     the transition from stick to slip (``n -> inf``: one Jenkins element). With ``x = chi / chi_slip``
     and ``a = chi_a / chi_slip``, the branches obey ``d(eta)/dx = 1 -+ |eta|^(n-1) eta`` (loading,
     unloading): every steady loop is an arc of one profile, and its describing function is a
-    quadrature of that arc (:func:`_bouc_wen_harmonics`), tabulated once over ``(ln a, ln n)``
-    and interpolated by bicubic splines of ``ln Re`` and ``ln Im`` (smooth in both; ~1e-9).
+    quadrature of that arc (:func:`_bouc_wen_harmonics`), tabulated once over amplitude and
+    exponent and interpolated by quintic splines of ``ln Re`` and ``ln Im`` (smooth in both;
+    within 1.2e-7 of ``delta_EJ``, :func:`_bouc_wen_table`).
 
-    Limits (the table's ends continue with them, matched in value and slope)::
+    Limits (the table's ends continue with them, :func:`_bouc_wen_rigidity`)::
 
         micro-slip:  Im EJ_slip* = 4 delta_EJ a^n / (pi (n + 2)),   W ~ chi_a^(n+2)
                      delta_EJ - Re EJ_slip* = K_n delta_EJ a^2n,
