@@ -227,6 +227,40 @@ def test_iwan5_reduces_to_segalmans_iwan4():
         assert np.abs(got - ref).max() <= 1e-10 * IWAN5["delta_EJ"]
 
 
+def _jenkins_set_harmonic(phi, weight, chi_a, n_theta=8000):
+    """First harmonic of parallel Jenkins elements (slip curvatures phi, rigidities weight), time-stepped.
+
+    Each element's elastic curvature is clipped to +-phi on every step (exact for a Jenkins
+    element); two periods from the virgin state (steady after the first reversal), the second
+    one's Fourier coefficients by the trapezoid rule.
+    """
+    theta = np.linspace(0.0, 4 * np.pi, 2 * n_theta, endpoint=False)
+    z, prev, m = np.zeros(phi.size), 0.0, np.empty(theta.size)
+    for k, c in enumerate(chi_a * np.cos(theta)):
+        z = np.clip(z + c - prev, -phi, phi)
+        prev, m[k] = c, weight @ z
+    th, m = theta[n_theta:], m[n_theta:]
+    return 2 * np.mean(m * np.cos(th)) / chi_a - 2j * np.mean(m * np.sin(th)) / chi_a
+
+
+def test_iwan5_matches_time_stepped_jenkins_elements():
+    # N elements at the density's midpoint quantiles plus the point mass: the midpoint rule's error
+    # falls as N^-2, so |N=1000 - N=2000| bounds N=2000's error (the trapezoid's is ~1e-9)
+    p = dict(IWAN5, density_exponent=-0.6)
+    q = p["density_exponent"] + 1
+    k_cont = p["delta_EJ"] / (1 + p["macro_ratio"])
+    for chi in (3e-4, 2e-3, 1.2e-2):
+        got = Iwan5Law().slip_rigidity(chi, **p)
+        steps = []
+        for n in (1000, 2000):
+            u = (np.arange(n) + 0.5) / n
+            phi = (p["chi_micro"] ** q + u * (p["chi_macro"] ** q - p["chi_micro"] ** q)) ** (1 / q)
+            weight = np.append(np.full(n, k_cont / n), p["delta_EJ"] - k_cont)
+            steps.append(_jenkins_set_harmonic(np.append(phi, p["chi_macro"]), weight, chi))
+        assert abs(got - steps[1]) <= abs(steps[1] - steps[0]) + 1e-8 * p["delta_EJ"]
+        assert abs(steps[1] - steps[0]) <= 1e-6 * abs(got)  # and that bound is tight
+
+
 def test_iwan5_micro_slip_between_its_cut_offs():
     law = Iwan5Law()
     # every wire sticks below chi_micro: the full stick rigidity, no friction
