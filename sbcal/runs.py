@@ -26,7 +26,7 @@ from .errors import InputError
 from .stats import arviz_version, inference_data, read_netcdf
 
 __all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
-           "posterior_draws", "parameter_summary", "StoredTest", "write_map", "read_map"]
+           "posterior_draws", "parameter_summary", "StoredTest", "write_map", "read_map", "write_inference_data"]
 
 SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
 
@@ -211,3 +211,15 @@ def read_map(directory) -> dict:
         law, _, param = name.partition("__")
         out.setdefault(law, {})[param] = np.asarray(post[name]).ravel()
     return out
+
+
+def write_inference_data(path, groups: dict, *, attrs: dict | None = None) -> Path:
+    """Write groups (``arviz.from_dict`` arguments: ``posterior``, ``log_likelihood``, ``dims`` ...) as
+    a netCDF file, atomically; ``attrs`` go on every group (strings and numbers)."""
+    idata = inference_data(**groups)
+    for group in idata.groups():
+        idata[group].attrs.update(attrs or {})
+    path = Path(path)
+    with atomic_path(path, ".nc") as tmp:
+        idata.to_netcdf(str(tmp))
+    return path
