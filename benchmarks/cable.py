@@ -5,7 +5,7 @@ Usage: python benchmarks/cable.py [--sets 16 32] [--repeat 7] [--element-repeat 
 The workload the sampler sees: parameter sets x the thesis's eight dry tests concatenated on the
 frequency axis (8 x 37 = 296 lines, each test's amplitude per line), one core. For each model it
 prints the best wall time of one ``dynamic_stiffness`` call, evaluations (sets x lines) per second,
-and the ratio to :class:`sbcal.extensions.SlipModel` (one element per arm at its rms curvature, 12
+and the ratio to the old one-element ``SlipModel`` (benchmarks/_slip_baseline.py) (one element per arm at its rms curvature, 12
 Illinois steps) measured in the same run. Target (the cable issue): <= 10 ms for 16 sets x 296
 lines. Then, for the fast model at the first ``--sets``, where the time goes: the compliance
 table, the one-compliance start, the Newton iterations (mean and largest count per entry) and the
@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from sbcal import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.cable import CableModel, ElementCableModel, _resolve, _widely_solve  # noqa: E402
 from sbcal.damper import resolve_damper  # noqa: E402
-from sbcal.extensions import SlipModel  # noqa: E402
+from _slip_baseline import SlipModel  # noqa: E402
 from sbcal.hysteresis import DahlLaw, IwanLaw, LognormalIwanLaw  # noqa: E402
 from sbcal.virtual_bench import DEFAULT_TESTS, test_amplitude  # noqa: E402
 

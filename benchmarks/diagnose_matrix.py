@@ -53,7 +53,7 @@ ej_static_nm2 = 140.0
 # effect specs: magnitudes other than those used while developing
 CASES = {
     "none": [],
-    "strand_slip": ["strand_slip=chi0:0.004,ej_max:0.5,sharpness:1.5,decay:0.8,loss:0.06,m:0.5"],
+    "strand_slip": ["strand_slip=law:lognormal_iwan,chi_median:0.004,log_spread:1.6,delta_EJ:0.4"],
     "fixture_mass": ["fixture_mass=0.08"],
     "sensor_delay": ["sensor_delay=3e-4"],
     "viscous_damping": ["viscous_damping=15"],
@@ -77,10 +77,11 @@ def _effects(specs, damper):
     out = {}
     for spec in specs:
         name, value = parse_effect(spec)
-        if name == "strand_slip":  # ej_max given as a fraction of ej_static here
+        if name == "strand_slip":  # delta_EJ given as a fraction of ej_static here
             from dataclasses import replace
 
-            value = replace(value, ej_max=value.ej_max * damper.ej_static)
+            p = dict(value.params)
+            value = replace(value, params=tuple(dict(p, delta_EJ=p["delta_EJ"] * damper.ej_static).items()))
         out[name] = value
     return out
 

@@ -458,8 +458,12 @@ def _add_diagnose(sub):
     p.add_argument("--priors", metavar="PATH", help="prior file of the base parameters (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--json", metavar="OUT", help="write the diagnosis as JSON")
+    p.add_argument("--curves", metavar="OUT.csv",
+                   help="write the fitted curves (posterior median per line) of the per-test model and of the verdict's "
+                        "model in the bench CSV columns plus a 'model' column")
     p.add_argument("--runs", default="runs", metavar="DIR",
-                   help="also store it as DIR/<damper>/diagnose.json for the report (default runs/)")
+                   help="also store it as DIR/<damper>/diagnose.json for the report, and a strand-slip verdict's "
+                        "cable law as DIR/<damper>/cable-<state>/ (default runs/)")
     _scale_options(p, "fits in parallel local processes")
     return p
 
@@ -483,10 +487,10 @@ def _cmd_diagnose(args) -> int:
         if executor is not None:  # the diagnosis as one job on the cluster
             result = executor.submit(diagnose, damper, bench, args.tests, seed=args.seed,
                                      config=replace(config, workers=1), progress=False,
-                                     prior_path=args.priors).result()
+                                     prior_path=args.priors, store=args.runs).result()
         else:
             result = diagnose(damper, bench, args.tests, seed=args.seed, config=config, progress=not args.quiet,
-                              prior_path=args.priors)
+                              prior_path=args.priors, store=args.runs)
     result["command"] = args.command_line
     if args.tests is None:  # a whole-damper diagnosis: 'sbcal run' may reuse it while its inputs hold
         result["inputs"] = diagnose_inputs(bench, damper, settings)
@@ -494,7 +498,12 @@ def _cmd_diagnose(args) -> int:
         write_json(args.json, result, indent=1)
     stored = Path(args.runs) / damper.name / "diagnose.json"
     write_json(stored, result, indent=1)
-    print(f"{damper.name}: verdict {result['verdict']}")
+    if args.curves:
+        from .bench import write_bench
+        from .diagnose import curves_frame
+
+        write_bench(curves_frame(result), args.curves)
+    print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else ""))
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
     if len(result["bands"]) > 12:
@@ -508,9 +517,79 @@ def _cmd_diagnose(args) -> int:
     print(f"  before: rms z {b['rms_z']:.2f}, 90% band coverage {b['coverage_90']:.3f}, "
           f"{b['lines_off']}/{b['n_lines']} lines off")
     if a is not b and a["effect"] != "baseline":
+        flag = "" if a["converged"] else f"  NOT CONVERGED ({'; '.join(a['not_converged'].values())})"
         print(f"  after ({a['effect']}): rms z {a['rms_z']:.2f}, 90% band coverage {a['coverage_90']:.3f}, "
-              f"{a['lines_off']}/{a['n_lines']} lines off")
-    print(f"stored in {stored}" + (f" and {args.json}" if args.json else ""))
+              f"{a['lines_off']}/{a['n_lines']} lines off{flag}")
+    sec = result.get("secondary")
+    if sec and sec.get("effect"):
+        print(f"  secondary: {sec['effect']}: {sec['parameters']['words']}")
+    elif sec is not None:
+        print("  secondary: none" + ("" if sec["misfit"] else " (no misfit left beyond chance)"))
+    print(f"stored in {stored}" + (f" and {args.json}" if args.json else "")
+          + (f"; curves in {args.curves}" if args.curves else ""))
+    return 0
+
+
+# --- cable -------------------------------------------------------------------------------------
+
+_LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contain Dahl's and Segalman's laws
+
+
+def _add_cable(sub):
+    from .hysteresis import FITTED_LAWS
+
+    p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
+                       description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
+                                   "another state) over all its tests at once, on the distributed cable model "
+                                   "(docs/cable.md), and store each state's posterior as "
+                                   "<runs>/<damper>/cable-<state>/posterior.nc + summary.json.")
+    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
+                   help="bundled damper name or TOML path (default damper1)")
+    _bench_options(p)
+    p.add_argument("--law", default="best", choices=list(FITTED_LAWS) + list(_LAW_ALIASES) + ["best"],
+                   help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
+                        "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), or best (both, "
+                        "the better by PSIS-LOO; default)")
+    p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
+    p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
+                   help="processes per fit (default: 2 or the cores there are)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def _cmd_cable(args) -> int:
+    from dataclasses import asdict
+    from pathlib import Path
+
+    from .cable_fit import fit_damper_cable, store_cable
+    from .damper import resolve_damper
+    from .hysteresis import FITTED_LAWS
+
+    damper = resolve_damper(args.damper)
+    bench = _bench_for(args)
+    if damper.name not in bench.dampers():
+        raise InputError(f"{bench.source}: no rows of damper {damper.name!r} (has: {', '.join(bench.dampers())})")
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    laws = FITTED_LAWS if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
+    fits, comparison = fit_damper_cable(damper, bench, laws=laws, seed=args.seed, prior_path=args.priors,
+                                        workers=args.workers, progress=not args.quiet)
+    best = comparison["best"]
+    for state, fit in sorted(fits[best].items()):
+        out = Path(args.runs) / damper.name / f"cable-{state}"
+        s = store_cable(fit, out, meta={"seed": args.seed, "made_by": args.command_line, "damper_values": asdict(damper)},
+                        comparison=comparison if len(laws) > 1 else None)
+        flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
+        vals = ", ".join(f"{n} {p['median']:.3g} [{p['q05']:.3g}, {p['q95']:.3g}]" for n, p in s["parameters"].items())
+        print(f"{damper.name} cable {state} ({best}, {len(fit.tests)} tests): {vals}; R-hat max {s['r_hat_max']:.3f}, "
+              f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.0f} s{flag}")
+        print(f"  stored in {out}/")
+    if len(laws) > 1:
+        print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
+            f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" for law, v in comparison["families"].items())
+            + f" (best: {best})")
     return 0
 
 
@@ -524,6 +603,7 @@ _COMMANDS = {
     "data": (_add_data, _cmd_data),
     "bench": (_add_bench, _cmd_bench),
     "diagnose": (_add_diagnose, _cmd_diagnose),
+    "cable": (_add_cable, _cmd_cable),
 }
 
 

@@ -6,11 +6,10 @@ Each extension is a forward-model variant with a stable id, its own parameters a
 ============================== ====== ==========================================================
 id                             scope  model (``f`` is :func:`sbcal.fem.dynamic_stiffness`)
 ============================== ====== ==========================================================
-strand_slip                    joint  per arm and line, ``EJ_e = EJ_slip + (EJ_stick - EJ_slip) g``,
-                                      ``beta_e = beta_material + beta_friction (1 - g)``,
-                                      ``g = 1 / (1 + (chi / chi_slip)^k)``, ``chi`` the arm's rms
-                                      curvature amplitude (self-consistent); one parameter set for
-                                      every amplitude of a cable
+strand_slip                    joint  the distributed cable of :mod:`sbcal.cable`: every section of
+                                      the arms follows one hysteresis law (:mod:`sbcal.hysteresis`),
+                                      one parameter set for every amplitude of a cable state
+                                      (:mod:`sbcal.cable_fit`)
 fixture_mass                   test   ``f - omega^2 m_f``
 sensor_delay                   test   ``f exp(-i omega tau)``
 viscous_damping                test   loss factor ``beta + beta_viscous f / 10 Hz``
@@ -19,10 +18,8 @@ base_rocking                   test   ``H[0,0] + r H[0,1]`` (the clamp rotates b
 frequency_dependent_stiffness  test   ``EJ(f) = EJ (f / 10 Hz)^s``
 ============================== ====== ==========================================================
 
-The strand-slip law here is a rational (Ramberg-Osgood-like) softening of the arm's rms curvature
-with an independent friction loss: deliberately not the virtual bench's tanh law evaluated at Gauss
-points along the arm (``docs/virtual_bench.md``), so a detection on the bench's data is not a fit of
-the simulator by itself.
+Measurement-chain effects compose (:func:`model_for` with ``secondary``): ``fixture_mass`` and
+``sensor_delay`` act on the measured signal and ride on any model; ``base_rocking`` adds ``r H[0,1]``.
 """
 
 from __future__ import annotations
@@ -32,14 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .damper import Damper
-from .fem import arm_impedance, arm_kernel, dynamic_stiffness
+from .fem import arm_impedance, dynamic_stiffness
 
-__all__ = ["Extension", "EXTENSIONS", "SlipModel", "model_for"]
+__all__ = ["Extension", "EXTENSIONS", "CHAIN", "Composed", "model_for"]
 
 F_REF_HZ = 10.0
 """Reference frequency of ``viscous_damping`` and ``frequency_dependent_stiffness`` [Hz]."""
 
-_SLIP_ITERATIONS = 12  # regula-falsi steps of the strand-slip fixed point (|gap| < 1e-7 on the bundled data)
 _GEOMETRY = ("a1", "a2")
 
 
@@ -129,84 +125,6 @@ def _frequency_dependent_stiffness(damper: Damper, freq_hz, *, ej_exponent, EJ, 
     return _per_line(damper, f, ej, _col(beta), _col(beta), params)[..., 0, 0]
 
 
-@dataclass(frozen=True)
-class SlipModel:
-    """The strand-slip forward model at given commanded amplitudes (picklable, for the sampler).
-
-    ``SlipModel(amplitude_mm_pp)(damper, freq_hz, **params) -> complex (n, n_freq)``, parameters
-    ``EJ_slip, EJ_stick`` [N m^2], ``chi_slip`` [1/m], ``slip_exponent``, ``beta_material``,
-    ``beta_friction`` and optionally ``a1, a2`` [m], each scalar or (n,).
-
-    Per arm e and line, with the clamp driven at ``X0 = amplitude / 2`` and the arm's rms curvature
-    amplitude over its length ``chi_e`` (the Hermite element's curvature is linear along it)::
-
-        g = 1 / (1 + (chi_e / chi_slip)^k)
-        EJ_e = EJ_slip + (EJ_stick - EJ_slip) g,   beta_e = beta_material + beta_friction (1 - g)
-
-    solved self-consistently (the curvature depends on ``EJ_e``) for the stick fraction ``g`` in
-    [0, 1] by a bracketing root finder (12 Illinois steps), a fixed number of steps so that the model is a deterministic
-    function of its parameters. ``EJ_slip >= EJ_stick`` is outside the model (NaN).
-
-    Attributes
-    ----------
-    amplitude_mm_pp : ndarray, shape (n_freq,)
-        Commanded base amplitude per line [mm peak-to-peak].
-    """
-
-    amplitude_mm_pp: np.ndarray
-
-    def state(self, damper: Damper, freq_hz, *, EJ_slip, EJ_stick, chi_slip, slip_exponent, beta_material,
-              beta_friction, **params):
-        """Per-arm rigidity and loss factor ``(ej, beta)``, each (2 arms, n, n_freq), and the rms curvature."""
-        f = np.asarray(freq_hz, dtype=float)
-        omega = 2 * np.pi * f[None, :]
-        x0 = np.broadcast_to(np.asarray(self.amplitude_mm_pp, dtype=float), f.shape)[None, :] / 2 * 1e-3
-        geometry = {k: params[k] for k in _GEOMETRY if k in params}
-        kernel = arm_kernel(damper, **geometry)
-        lo, hi, c0, k = (_col(v)[None] for v in (EJ_slip, EJ_stick, chi_slip, slip_exponent))
-        bm, bf = _col(beta_material)[None], _col(beta_friction)[None]
-        n = max(lo.shape[1], hi.shape[1], c0.shape[1], k.shape[1], bm.shape[1], bf.shape[1],
-                *(np.size(v) for v in geometry.values()))
-        shape = (2, n, f.size)
-
-        def gap(g):
-            """``g - G(g)``: the stick fraction in, minus the one the resulting curvature gives."""
-            ej, beta = lo + (hi - lo) * g, bm + bf * (1 - g)
-            chi = kernel.curvatures(omega, ej * (1 + 1j * beta), x0, 0.0)  # (n, F, arm, end)
-            a, b = chi[..., 0], chi[..., 1]
-            rms = np.sqrt(np.maximum((np.abs(a)**2 + np.abs(b)**2 + np.real(a * np.conj(b))) / 3, 0.0))
-            rms = np.moveaxis(rms, -1, 0)  # (2, n, F)
-            return g - 1.0 / (1.0 + (rms / c0) ** k), rms
-
-        # The fixed point is one scalar g in [0, 1] per arm and line, bracketed: gap(0) < 0 <= gap(1).
-        # Illinois regula falsi, a fixed number of steps, so the model is a deterministic function of
-        # its parameters (plain iteration converges slowly or oscillates near the resonances).
-        g0, g1 = np.zeros(shape), np.ones(shape)
-        h0, h1 = gap(g0)[0], gap(g1)[0]
-        side = np.zeros(shape)
-        for _ in range(_SLIP_ITERATIONS):
-            denom = h1 - h0
-            g = np.where(denom > 0, (g0 * h1 - g1 * h0) / np.where(denom > 0, denom, 1.0), g1)
-            h, rms = gap(g)
-            left = h < 0
-            g0, h0 = np.where(left, g, g0), np.where(left, h, h0)
-            g1, h1 = np.where(left, g1, g), np.where(left, h1, h)
-            # Illinois: the end kept twice in a row has its value halved (no one-sided stall)
-            h1 = np.where(left & (side == 1), 0.5 * h1, h1)
-            h0 = np.where(~left & (side == -1), 0.5 * h0, h0)
-            side = np.where(left, 1, -1)
-        g = np.where(np.abs(h0) < np.abs(h1), g0, g1)
-        ln_ej, beta = np.log(lo + (hi - lo) * g), bm + bf * (1 - g)
-        return np.exp(ln_ej), beta, rms
-
-    def __call__(self, damper: Damper, freq_hz, **params):
-        ej, beta, _ = self.state(damper, freq_hz, **params)
-        geometry = {k: params[k] for k in _GEOMETRY if k in params}
-        out = arm_impedance(damper, freq_hz, ej1=ej[0], ej2=ej[1], beta1=beta[0], beta2=beta[1], **geometry)[..., 0, 0]
-        bad = (_col(params["EJ_slip"]) >= _col(params["EJ_stick"]))
-        return np.where(bad, np.nan, out)
-
-
 _MODELS = {
     "baseline": dynamic_stiffness,
     "fixture_mass": _fixture_mass,
@@ -218,11 +136,47 @@ _MODELS = {
 }
 
 
-def model_for(effect: str, amplitude_mm_pp=None):
-    """The forward model of ``"baseline"`` or a catalogue id: ``model(damper, freq_hz, **params)``.
+CHAIN = ("fixture_mass", "sensor_delay")
+"""Effects on the measured signal: they compose with any model (in this order: mass, then delay)."""
 
-    ``amplitude_mm_pp`` (shape (n_freq,)) is needed by ``strand_slip`` only.
+
+@dataclass(frozen=True)
+class Composed:
+    """A per-test model with measurement-chain effects on top (picklable).
+
+    ``Composed(base, chain)(damper, freq_hz, **params)``: the ``base`` catalogue model (or
+    ``"baseline"``) with its own parameters, then ``f - omega^2 m_f`` and ``f exp(-i omega tau)`` for
+    the effects of ``chain`` (their parameters ``fixture_mass_kg``, ``delay_s``).
+    """
+
+    base: str
+    chain: tuple
+
+    def __call__(self, damper: Damper, freq_hz, **params):
+        own = {"fixture_mass": "fixture_mass_kg", "sensor_delay": "delay_s"}
+        chain = {own[e]: params.pop(own[e]) for e in self.chain}
+        f = _MODELS[self.base](damper, freq_hz, **params)
+        omega = 2 * np.pi * np.asarray(freq_hz, dtype=float)
+        if "fixture_mass_kg" in chain:
+            f = f - omega**2 * _col(chain["fixture_mass_kg"])
+        if "delay_s" in chain:
+            f = f * np.exp(-1j * omega * _col(chain["delay_s"]))
+        return f
+
+
+def model_for(effect: str, secondary=()):
+    """The per-test forward model of ``"baseline"`` or a catalogue id, with measurement-chain effects
+    ``secondary`` (:data:`CHAIN`) on top: ``model(damper, freq_hz, **params)``.
+
+    ``strand_slip`` is a joint model (:class:`sbcal.cable_fit.CableForward`), not made here.
     """
     if effect == "strand_slip":
-        return SlipModel(np.asarray(amplitude_mm_pp, dtype=float))
-    return _MODELS[effect]
+        raise ValueError("strand_slip is the cable model of sbcal.cable_fit")
+    secondary = tuple(secondary)
+    bad = [e for e in secondary if e not in CHAIN]
+    if bad:
+        raise ValueError(f"{bad[0]} does not compose with a per-test model (composable: {', '.join(CHAIN)})")
+    if not secondary:
+        return _MODELS[effect]
+    chain = set(secondary) | ({effect} if effect in CHAIN else set())
+    return Composed("baseline" if effect in CHAIN else effect, tuple(e for e in CHAIN if e in chain))

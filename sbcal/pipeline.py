@@ -264,7 +264,8 @@ def diagnose_inputs(bench, damper: Damper, settings: Settings) -> dict:
     """What a damper's diagnosis is made from (stored as its ``inputs``)."""
     diag = {k: v for k, v in asdict(settings.diagnose).items() if k != "workers"}
     return {"bench_rows": rows_digest(bench, damper.name), "damper": _damper_digest(damper),
-            "priors": {"default": file_digest(settings.priors), "extensions": file_digest(None, "extensions.toml")},
+            "priors": {"default": file_digest(settings.priors), "extensions": file_digest(None, "extensions.toml"),
+                       "cable": file_digest(None, "cable.toml")},
             "settings": diag, "seed": settings.seed, "sbcal": _version()}
 
 
@@ -273,7 +274,7 @@ def _diagnose_job(job):
     from .diagnose import diagnose
 
     doc = diagnose(damper, bench, seed=settings.seed, config=settings.diagnose, progress=progress,
-                   prior_path=settings.priors)
+                   prior_path=settings.priors, store=store)
     doc["command"] = command
     doc["inputs"] = inputs
     write_json(Path(store) / damper.name / "diagnose.json", doc, indent=1)

@@ -175,22 +175,114 @@ def _diagnosis_figure(doc, path: Path) -> str:
     return _save(fig, path)
 
 
+def _law_figure(cables: dict, path: Path) -> str:
+    """The cable law of each state: EJ and loss factor against curvature amplitude, median and 90 %
+    band, with the curvature range each test reached."""
+    from .cable_fit import law_curves
+
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for i, (state, (summary, draws)) in enumerate(sorted(cables.items())):
+        color = f"C{i % 10}"
+        reached = summary.get("tests_reached", {})
+        lo = min((r["curvature_min"] for r in reached.values()), default=1e-4)
+        hi = max((r["curvature_max"] for r in reached.values()), default=1e-1)
+        chi = np.geomspace(max(lo / 10, 1e-7), hi * 10, 120)
+        keep = np.linspace(0, next(iter(draws.values())).size - 1, min(400, next(iter(draws.values())).size)).astype(int)
+        ej, loss = law_curves(summary["law"], {k: v[keep] for k, v in draws.items()}, chi)
+        for ax, y in ((axes[0], ej), (axes[1], loss)):
+            q05, q50, q95 = np.quantile(y, [0.05, 0.5, 0.95], axis=0)
+            ax.fill_between(chi, q05, q95, color=color, alpha=0.25)
+            ax.plot(chi, q50, color=color, lw=1.5, label=f"{state} cable ({summary['law']}), median and 90 %")
+        for k, (t, r) in enumerate(sorted(reached.items())):  # the range each test bent the arms over
+            yk = 0.96 - 0.05 * k - 0.4 * i
+            axes[0].plot([r["curvature_min"], r["curvature_max"]], [yk, yk], transform=axes[0].get_xaxis_transform(),
+                         color=color, lw=3, alpha=0.6, solid_capstyle="butt")
+            axes[0].text(r["curvature_max"], yk, f" {t}", transform=axes[0].get_xaxis_transform(), fontsize=6,
+                         va="center", color=color)
+    axes[0].set(xscale="log", yscale="log", xlabel="curvature amplitude [1/m]", ylabel="EJ = Re EJ* [N m$^2$]",
+                title="Cable rigidity (bars: curvature range each test reached)")
+    axes[1].set(xscale="log", xlabel="curvature amplitude [1/m]", ylabel="loss factor Im EJ* / Re EJ*",
+                title="Cable loss factor")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _curves_figure(doc, path: Path) -> str:
+    """Each test's run means with the per-test model's and the verdict model's fitted curves."""
+    plt = _plt()
+    curves = doc.get("curves", {})
+    base = curves.get("baseline", {})
+    model = doc["after"]["effect"]
+    unified = curves.get(model, {})
+    tests = list(base)
+    fig, axes = plt.subplots(len(tests), 2, figsize=(10, 1.6 * len(tests) + 1.0), sharex=True, squeeze=False)
+    for i, t in enumerate(tests):
+        f = np.asarray(base[t]["freq_hz"])
+        data = curves.get("data", {}).get(t)
+        for q, (name, conv) in enumerate((("logmag", np.exp), ("phase", np.degrees))):
+            ax = axes[i, q]
+            if data is not None:
+                ax.plot(f, conv(np.asarray(data[name])), "k.", ms=3, label="mean of the runs")
+            ax.plot(f, conv(np.asarray(base[t][name])), color="0.5", lw=1, label="per-test model")
+            if t in unified:
+                ax.plot(f, conv(np.asarray(unified[t][name])), color="C3", lw=1.2, label=model)
+            ax.text(0.01, 0.95, f"{t} {'|F/X| [N/m]' if q == 0 else 'phase [deg]'}", transform=ax.transAxes,
+                    va="top", fontsize=8, bbox=dict(fc="white", ec="none", alpha=0.8))
+            if q == 0:
+                ax.set_yscale("log")
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, loc="lower right")
+    for q in (0, 1):
+        axes[-1, q].set_xlabel("frequency [Hz]")
+    fig.suptitle(f"{doc['damper']}: fitted curves, the per-test model and {model}", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def _diagnosis(path: Path, figs: Path):
-    """The stored ``sbcal diagnose`` result of a damper, ready for the page (None if there is none)."""
+    """The stored ``sbcal diagnose`` result of a damper, ready for the page (None if there is none),
+    with its cable laws (``cable-<state>/``) when the verdict is strand slip."""
     import json
+
+    from .cable_fit import read_cable
 
     if not path.is_file():
         return None
     try:
         doc = json.loads(path.read_text())
         doc["figure"] = _diagnosis_figure(doc, figs / f"{doc['damper']}_diagnosis.png")
+        if doc.get("curves") and doc["after"]["effect"] != "baseline":
+            doc["curves_figure"] = _curves_figure(doc, figs / f"{doc['damper']}_curves.png")
     except (ValueError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a diagnosis written by sbcal diagnose ({e})") from None
+    cables = {}
+    for d in sorted(path.parent.glob("cable-*")):
+        if (d / "summary.json").is_file():
+            cables[d.name.removeprefix("cable-")] = read_cable(d)
+    if cables:
+        doc["law_figure"] = _law_figure(cables, figs / f"{doc['damper']}_law.png")
+        doc["cables"] = {state: s for state, (s, _) in cables.items()}
     return doc
 
 
 def _fmt(v, digits=4):
     return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+
+def eng(v) -> str:
+    """A number in engineering precision: 3 significant digits (``2.00e+06``, ``0.125``, ``41.7``)."""
+    if v is None:
+        return "—"
+    v = float(v)
+    if not np.isfinite(v):
+        return "—"
+    if v != 0 and not 1e-3 <= abs(v) < 1e5:
+        return f"{v:.2e}"
+    return f"{v:.3g}"
 
 
 def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", command: str = "",
@@ -315,6 +407,7 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
         dampers=dampers, map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
         created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
         runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
+        eng=eng,
     )
     index = out / "index.html"
     with atomic_path(index, ".html") as tmp:
