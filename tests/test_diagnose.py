@@ -132,8 +132,9 @@ def test_bands_join_neighbouring_off_lines():
 
 # --- the fast subset of the confusion matrix ----------------------------------------------------
 
-@pytest.mark.parametrize("case, verdict", [("none", "none"), ("sensor_delay", "sensor_delay"),
-                                           ("fixture_mass", "fixture_mass")])
+@pytest.mark.parametrize("case, verdict", [("none", "none"),
+                                           pytest.param("sensor_delay", "sensor_delay", marks=pytest.mark.slow),
+                                           pytest.param("fixture_mass", "fixture_mass", marks=pytest.mark.slow)])
 def test_diagnose_names_the_concealed_effect(tmp_path, damper, case, verdict):
     r = run_case(damper, case, 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST)
     assert r["verdict"] == verdict, r["ranking"]
@@ -146,6 +147,7 @@ def test_diagnose_names_the_concealed_effect(tmp_path, damper, case, verdict):
 
 
 def test_diagnose_delay_value_and_words(tmp_path, damper):
+    """The delay's value and its words (the catalogue cut to two candidates: quick)."""
     r = run_case(damper, "sensor_delay", 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST,
                  effects=["sensor_delay", "fixture_mass"])
     v = r["parameters"]["values"]["delay_s"]
@@ -153,6 +155,7 @@ def test_diagnose_delay_value_and_words(tmp_path, damper):
     assert "ms delay" in r["parameters"]["words"]
 
 
+@pytest.mark.slow
 def test_fixture_resonance_is_unexplained_with_its_band(tmp_path, damper):
     r = run_case(damper, "fixture_resonance", 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST)
     assert r["verdict"] == "unexplained", r["ranking"]

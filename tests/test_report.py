@@ -129,12 +129,16 @@ def test_report_shows_the_diagnosis(run_store, tmp_path):
     from sbcal.diagnose import DiagnoseConfig
     from sbcal.virtual_bench import BenchConfig, record
 
+    from sbcal._io import write_json
+    from sbcal.diagnose import diagnose
+
     d = resolve_damper("damper1")
     cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.3}, effects={"sensor_delay": 4e-4}, runs=8)
     path = tmp_path / "delay.csv"
     write_bench(record(d, cfg, ["0.5-0.5", "1-1"], rng=np.random.default_rng(8)), path)
-    assert main(["diagnose", "--damper", "damper1", "--bench", str(path), "--runs", str(run_store), "--seed", "2",
-                 "--quiet"]) == 0
+    doc = diagnose(d, load_bench(path), seed=2, progress=False, effects=["sensor_delay", "fixture_mass"],
+                   config=DiagnoseConfig(draws=150))
+    write_json(run_store / "damper1" / "diagnose.json", doc)
     out = tmp_path / "rep"
     assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0
     page = (out / "index.html").read_text()
