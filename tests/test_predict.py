@@ -128,6 +128,15 @@ def test_tolerance_table_is_optional_and_checked(tmp_path):
         assert "\n" not in str(e.value) and str(p) in str(e.value)
 
 
+def test_tolerances_leave_the_calibration_inputs_unchanged():
+    """The run store's digest of a damper is the one before tolerances existed: stored runs stay valid."""
+    from sbcal.pipeline import _damper_digest, inputs_digest
+
+    d = resolve_damper("damper1")
+    before = inputs_digest({k: v for k, v in asdict(d).items() if k not in ("source", "tolerance")})
+    assert _damper_digest(d) == _damper_digest(replace(d, tolerance=(("m1", 2.0),))) == before
+
+
 def test_with_value_checks_like_the_reader():
     d = resolve_damper("damper1")
     assert with_value(d, "cable.length1_m", np.float64(0.3)).L1 == 0.3
