@@ -11,15 +11,17 @@ Usage: python benchmarks/transfer.py [--work DIR] [--draws 300] [--seed 0]
 3. The cable law: ``sbcal cable --damper damper1 --law iwan5`` (the family that fits this cable:
    docs/cable.md), stored under ``DIR/runs`` (reused when there).
 4. The new route: :func:`sbcal.predict.predict` for NEW at each amplitude (tolerances: the default
-   +-5 % on the offsets), compared with NEW's run means (outlier runs removed as the calibration
-   removes them; magnitude: geometric mean, phase: mean): the share of the lines whose run mean lies
-   inside the 90 % band (magnitude, phase, both), and the rms error of the median (magnitude %,
-   phase deg).
+   +-5 % on the offsets; bands with the calibration's model error, the default, and without),
+   compared with NEW's run means (outlier runs removed as the calibration removes them; magnitude:
+   geometric mean, phase: mean): the share of the lines whose run mean lies inside the 90 % band
+   (magnitude, phase, both), and the rms error of the median (magnitude %, phase deg).
 5. The thesis's route on the same data: one EJ and beta per test of damper1 (``sbcal sample --all``,
    theta1, stored under ``DIR/runs``), the power laws ``EJ(A) = k A^-n`` and ``beta(A) = k A^-n``
    fitted to them by :func:`sbcal.amplitude.fit_law` (what ``sbcal map`` does for EJ; the tests'
    scatter about the law included in the draws), applied at the same base amplitude in the 6-DOF
-   model of NEW with the same +-5 % offsets.
+   model of NEW with the same +-5 % offsets; its band with its own model error too (the per-test
+   fit's learned ``sigma_mag``, ``sigma_phase`` at that amplitude, drawn from its posterior), and
+   without.
 6. Extrapolation: NEW at 4 mm p-p and at 0.1 m/s constant velocity, lines marked.
 
 Prints the table; writes ``DIR/transfer.png`` (prediction against NEW's run means) and
@@ -83,10 +85,15 @@ def run_means(bench, test):
 
 
 def thesis_route(runs: Path, draws: int, seed: int):
-    """(EJ draws, beta draws) per amplitude from the power laws of damper1's per-test posteriors."""
+    """Per amplitude: draws of EJ and beta from the power laws of damper1's per-test posteriors, and of
+    that amplitude's test's learned model error (sigma_mag, sigma_phase)."""
+    from sbcal.runs import posterior_draws
+
     keep = lambda t: "oiled" not in t  # noqa: E731
     laws = {name: fit_law(points_from_runs(runs, "damper1", name, include=keep), "powerlaw", seed=seed + i)
             for i, name in enumerate(("EJ", "beta"))}
+    sigmas = {r.amplitude: r.draws for r in posterior_draws(runs, "damper1", "theta1", ("sigma_mag", "sigma_phase"))
+              if r.amplitude is not None and keep(r.test)}
     rng = np.random.default_rng(seed)
     out = {}
     for a in AMPS:
@@ -96,8 +103,20 @@ def thesis_route(runs: Path, draws: int, seed: int):
             i = rng.integers(0, d["k"].size, draws)
             log_mean = np.log(d["k"][i]) - d["n"][i] * np.log(a)
             vals.append(np.exp(log_mean + d["scatter"][i] * rng.standard_normal(draws)))
-        out[a] = vals
+        j = rng.integers(0, sigmas[a]["sigma_mag"].size, draws)
+        out[a] = vals + [sigmas[a]["sigma_mag"][j], sigmas[a]["sigma_phase"][j]]
     return out, {k: {n: float(np.median(v)) for n, v in law.draws.items()} for k, law in laws.items()}
+
+
+def with_error(fuu, sd_mag, sd_phase, rng, reps=10):
+    """Draws of f times independent normal model errors (per draw: its own scales), (reps * S, F)."""
+    e = rng.standard_normal((2, reps) + fuu.shape)
+    return (fuu[None] * np.exp(e[0] * sd_mag[None, :, None] + 1j * e[1] * sd_phase[None, :, None])).reshape(-1, fuu.shape[1])
+
+
+def quantiles(fuu):
+    q = (0.05, 0.5, 0.95)
+    return np.quantile(np.abs(fuu), q, axis=0), np.quantile(np.degrees(np.angle(fuu)), q, axis=0)
 
 
 def score(freq, q_mag, q_phase, mag, phase):
@@ -128,6 +147,7 @@ def main():
 
     pred = predict(cable, NEW, amplitude_mm_pp=list(AMPS), n_draws=args.draws, seed=args.seed)
     store_prediction(pred, meta={"made_by": "benchmarks/transfer.py"})
+    bare = predict(cable, NEW, amplitude_mm_pp=list(AMPS), n_draws=args.draws, seed=args.seed, model_error=False)
     thesis, medians = thesis_route(runs, args.draws, args.seed)
     rng = np.random.default_rng(args.seed + 1)
     offsets = {k: getattr(NEW, k) * (1 + 0.05 * rng.uniform(-1, 1, args.draws)) for k in ("a1", "a2")}
@@ -137,32 +157,40 @@ def main():
         assert np.allclose(f, pred.freq_hz)
         observed[a] = (f, mag, phase)
         new = score(f, pred.stiffness_n_per_m[i], pred.phase_deg[i], mag, phase)
-        ej, beta = thesis[a]
+        new0 = score(f, bare.stiffness_n_per_m[i], bare.phase_deg[i], mag, phase)
+        ej, beta, sd_mag, sd_phase = thesis[a]
         fuu = dynamic_stiffness(NEW, f, EJ=ej, beta=beta, **offsets)
-        old = score(f, np.quantile(np.abs(fuu), (0.05, 0.5, 0.95), axis=0),
-                    np.quantile(np.degrees(np.angle(fuu)), (0.05, 0.5, 0.95), axis=0), mag, phase)
-        rows.append((a, new, old, int(pred.extrapolated[i].sum())))
+        old = score(f, *quantiles(with_error(fuu, sd_mag, sd_phase, rng)), mag, phase)
+        old0 = score(f, *quantiles(fuu), mag, phase)
+        rows.append((a, new, new0, old, old0, int(pred.extrapolated[i].sum())))
     plot_prediction(pred, work / "transfer.png", observed=observed)
 
     print(f"\ncable: {cable} ({pred.law}); new damper {NEW.name}: m1 {NEW.m1}, m2 {NEW.m2} kg, L1 {NEW.L1}, L2 {NEW.L2} m "
           f"(damper1: 3.1, 2.48 kg, 0.20, 0.15 m); {pred.n_draws} draws, seed {args.seed}")
+    me = pred.model_error
+    print("model error from the calibration (rms residual ln|f| / phase deg per amplitude): " + ", ".join(
+        f"{a:g} mm {m:.3f} / {p:.2f}" for a, m, p in zip(me["amplitude_mm_pp"], me["logmag_sd"], me["phase_sd_deg"])))
     print(f"thesis route: EJ = {medians['EJ']['k']:.3g} A^-{medians['EJ']['n']:.3f}, "
-          f"beta = {medians['beta']['k']:.3g} A^-{medians['beta']['n']:.3f} (medians)")
+          f"beta = {medians['beta']['k']:.3g} A^{-medians['beta']['n']:+.3f} (medians)")
     for w in pred.warnings:
         print("warning:", w)
-    print("\n| amplitude [mm p-p] | run means in 90 % band: magnitude / phase / both (cable law) | rms error of the "
-          "median: magnitude % / phase deg (cable law) | same, thesis route (EJ(A) power law) | rms error, thesis "
-          "route | extrapolated lines |")
-    print("|---|---|---|---|---|---|")
-    for a, new, old, n_ex in rows:
-        print(f"| {a:g} | {new['mag']:.0%} / {new['phase']:.0%} / {new['both']:.0%} | {new['rms_mag_pct']:.1f} / "
-              f"{new['rms_phase_deg']:.1f} | {old['mag']:.0%} / {old['phase']:.0%} / {old['both']:.0%} | "
-              f"{old['rms_mag_pct']:.1f} / {old['rms_phase_deg']:.1f} | {n_ex} |")
-    tot = {k: np.mean([r[1][k] for r in rows]) for k in rows[0][1]}
-    old = {k: np.mean([r[2][k] for r in rows]) for k in rows[0][2]}
-    print(f"| all | {tot['mag']:.0%} / {tot['phase']:.0%} / {tot['both']:.0%} | {tot['rms_mag_pct']:.1f} / "
-          f"{tot['rms_phase_deg']:.1f} | {old['mag']:.0%} / {old['phase']:.0%} / {old['both']:.0%} | "
-          f"{old['rms_mag_pct']:.1f} / {old['rms_phase_deg']:.1f} | |")
+
+    def cov(r):
+        return f"{r['mag']:.0%} / {r['phase']:.0%} / {r['both']:.0%}"
+
+    def err(r):
+        return f"{r['rms_mag_pct']:.1f} / {r['rms_phase_deg']:.2f}"
+
+    print("\nrun means of the new damper inside the 90 % band: magnitude / phase / both; rms error of the median: "
+          "magnitude % / phase deg")
+    print("| amplitude [mm p-p] | cable law: in band | (without model error) | rms error | thesis route: in band | "
+          "(without model error) | rms error | extrapolated lines |")
+    print("|---|---|---|---|---|---|---|---|")
+    for a, new, new0, old, old0, n_ex in rows:
+        print(f"| {a:g} | {cov(new)} | {cov(new0)} | {err(new)} | {cov(old)} | {cov(old0)} | {err(old)} | {n_ex} |")
+    mean = [{k: np.mean([r[j][k] for r in rows]) for k in rows[0][1]} for j in range(1, 5)]
+    print(f"| all | {cov(mean[0])} | {cov(mean[1])} | {err(mean[0])} | {cov(mean[2])} | {cov(mean[3])} | "
+          f"{err(mean[2])} | |")
 
     # extrapolation marks: beyond the calibration's curvature
     ext = predict(cable, NEW, amplitude_mm_pp=[4.0], n_draws=min(args.draws, 100), seed=args.seed)

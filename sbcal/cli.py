@@ -599,7 +599,7 @@ def _add_predict(sub):
     p = sub.add_parser("predict", help="a new damper from the calibrated cable: dynamic stiffness, power, resonances",
                        description="The posterior predictive of a damper built with a calibrated cable (docs/predict.md): "
                                    "dynamic stiffness (magnitude, phase), dissipated power and the resonance frequencies, "
-                                   "each as median and 90 %% band, propagating the cable posterior and the damper's "
+                                   "each as median and 90 % band, propagating the cable posterior and the damper's "
                                    "tolerances; lines that bend the arms beyond the calibrated curvature are marked. "
                                    "Stored as <runs>/<calibration damper>/predict-<damper>-<state>/.")
     p.add_argument("--cable", required=True, metavar="RUN",
@@ -617,6 +617,9 @@ def _add_predict(sub):
                         "power against it")
     p.add_argument("--draws", type=int, default=None, metavar="N",
                    help="posterior draws used (default 300; 200 for a sweep)")
+    p.add_argument("--no-model-error", action="store_true",
+                   help="bands of the cable posterior and the tolerances alone, without the calibration's residual "
+                        "scale (docs/predict.md)")
     p.add_argument("--bench-effects", action="store_true",
                    help="apply the calibration bench's fitted measurement-chain effects (delay, fixture mass, rocking)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -657,7 +660,8 @@ def _cmd_predict(args) -> int:
         plot = plot_sweep
     else:
         res = predict(cable, damper, amplitude_mm_pp=args.amplitude, velocity_m_s=args.velocity, freq_hz=freq,
-                      n_draws=args.draws or 300, seed=args.seed, bench_effects=args.bench_effects)
+                      n_draws=args.draws or 300, seed=args.seed, bench_effects=args.bench_effects,
+                      model_error=not args.no_model_error)
         out = store_prediction(res, meta=meta)
         print(f"{damper.name}: predicted with the {cable.damper} {cable.state} cable ({cable.law}), {res.n_draws} draws"
               + (" (the calibration damper: its posterior offsets)" if res.own_offsets else ""))

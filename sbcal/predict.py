@@ -30,6 +30,14 @@ maximum is interior to the window; ``share`` is the fraction of draws that have 
 numbered by frequency at each condition (a peak that appears or vanishes in a design sweep shifts
 the numbers of those above it).
 
+*Model error*: the cable law is a model, and the calibration's run means leave its posterior median
+curve by a margin the posterior does not carry (the likelihood has no discrepancy term: the posterior
+of the law is far narrower than its misfit). By default (``model_error``) the bands add that margin as
+the calibration showed it: per calibrated amplitude the rms residual of the calibration's run means
+about the median model curve, in ln|f| and in phase (:class:`ModelError`), interpolated in ln(amplitude)
+to each line's amplitude (held constant beyond the calibrated amplitudes), as independent normal
+errors on every draw and line. The resonances and the design sweeps are those of the model curves.
+
 The calibration damper's mass offsets ``a1``, ``a2`` in the posterior are that damper's: they are
 used (instead of tolerance draws) only when the predicted damper is the calibration damper (same name
 and geometry). Measurement-chain effects fitted with the cable (sensor delay, fixture mass, base
@@ -60,6 +68,8 @@ __all__ = [
     "PROMINENCE",
     "CableRun",
     "load_cable_run",
+    "ModelError",
+    "model_error_of",
     "Resonance",
     "Prediction",
     "SweepResult",
@@ -402,6 +412,99 @@ def _flags(top, calibrated) -> np.ndarray:
     return (top > hi * (1 + EXTRAPOLATION_MARGIN)) | (top < lo / (1 + EXTRAPOLATION_MARGIN))
 
 
+# --- the model's error, as the calibration showed it ------------------------------------------------
+
+@dataclass(frozen=True)
+class ModelError:
+    """The calibration's residual scale per amplitude: rms over its lines at that amplitude of the run
+    means about the median model curve (draws of the posterior through the calibration's own model).
+
+    Attributes
+    ----------
+    amplitude_mm_pp : ndarray, shape (K,)
+        The calibrated amplitudes, increasing.
+    logmag_sd : ndarray, shape (K,)
+        rms residual of ln|f| [1].
+    phase_sd_deg : ndarray, shape (K,)
+        rms residual of the phase [deg].
+    """
+
+    amplitude_mm_pp: np.ndarray
+    logmag_sd: np.ndarray
+    phase_sd_deg: np.ndarray
+
+    def at(self, amplitude_mm_pp) -> tuple[np.ndarray, np.ndarray]:
+        """``(logmag_sd, phase_sd_rad)`` at amplitudes [mm p-p]: interpolated in ln(amplitude), held
+        constant beyond the calibrated ones."""
+        la = np.log(np.asarray(amplitude_mm_pp, float))
+        grid = np.log(self.amplitude_mm_pp)
+        return np.interp(la, grid, self.logmag_sd), np.radians(np.interp(la, grid, self.phase_sd_deg))
+
+    def as_dict(self) -> dict:
+        return {"amplitude_mm_pp": self.amplitude_mm_pp.tolist(), "logmag_sd": self.logmag_sd.tolist(),
+                "phase_sd_deg": self.phase_sd_deg.tolist()}
+
+
+def model_error_of(run, *, n_draws: int = 50, seed: int = 0) -> ModelError:
+    """:class:`ModelError` of a stored cable fit: its model on its own lines (the calibration damper, its
+    tests' amplitudes, each test one sweep, its measurement-chain effects) for ``n_draws`` posterior
+    draws, the median curve against the stored run means.
+
+    Raises
+    ------
+    InputError
+        The run does not store the calibration damper's values or its lines.
+    """
+    from .stats import read_netcdf
+
+    cable = load_cable_run(run)
+    if cable.calibration is None:
+        raise InputError(f"{cable.path}: summary.json has no damper_values: the calibration's residuals cannot be formed")
+    idata = read_netcdf(cable.path / "posterior.nc")
+    try:
+        const, obs = idata.constant_data, idata.observed_data
+        f = np.asarray(const["freq_hz"], float)
+        amp = np.asarray(const["amplitude_mm_pp"], float)
+        test = np.asarray(const["line_test"]).astype(str)
+        ybar = np.stack([np.asarray(obs["logmag_mean"], float), np.asarray(obs["phase_mean"], float)])
+    except (AttributeError, KeyError) as e:
+        raise InputError(f"{cable.path}: posterior.nc lacks the calibration's lines ({e})") from None
+    idx = _subset(cable, n_draws, _streams(seed)[0])
+    params = {n: cable.draws[n][idx] for n in cable.summary.get("parameters", cable.draws) if n in cable.draws}
+    seg = np.concatenate([[0], np.cumsum(test[1:] != test[:-1])])
+    from .cable_fit import CableForward
+
+    fwd = CableForward(cable.law, amp, seg, tuple(cable.summary.get("effects", ())))
+    step = max(1, _CHUNK // f.size)
+    fm = np.concatenate([fwd.state(cable.calibration, f, continuation=True,
+                                   **{k: v[i:i + step] for k, v in params.items()})[1]
+                         for i in range(0, idx.size, step)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mu = np.stack([np.nanmedian(np.log(np.abs(fm)), axis=0), np.nanmedian(np.angle(fm), axis=0)])
+    r = ybar - mu
+    r[1] = np.remainder(r[1] + np.pi, 2 * np.pi) - np.pi
+    levels = np.unique(amp)
+    sd = np.array([[np.sqrt(np.nanmean(r[q, amp == a] ** 2)) for a in levels] for q in (0, 1)])
+    return ModelError(amplitude_mm_pp=levels, logmag_sd=sd[0], phase_sd_deg=np.degrees(sd[1]))
+
+
+_ERROR_SAMPLES = 4000  # (draw, model-error) samples per line behind the bands with model error
+
+
+def _bands(fuu, x0, f, error, rng):
+    """Quantiles (3, F) of |f|, phase [deg] and power from the draws ``fuu`` (S, F), with the model
+    error ``(logmag_sd, phase_sd_rad)`` per line (each (F,)) added when given."""
+    mag, phase = np.abs(fuu), np.angle(fuu)  # a passive draw's phase lies in (0, pi): no wrap
+    if error is not None:
+        reps = max(1, -(-_ERROR_SAMPLES // fuu.shape[0]))
+        sd_m, sd_p = error
+        e = rng.standard_normal((2, reps) + fuu.shape)
+        # the phase error is added, not wrapped: about 180 deg it may pass it, as measured phases do
+        mag, phase = (mag[None] * np.exp(e[0] * sd_m)).reshape(-1, f.size), (phase[None] + e[1] * sd_p).reshape(-1, f.size)
+    return (_quantiles(mag), _quantiles(np.degrees(phase)), _quantiles(0.5 * 2 * np.pi * f * mag * np.sin(phase) * x0**2))
+
+
 # --- the prediction ---------------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
@@ -449,6 +552,8 @@ class Prediction:
         The posterior's ``a1``, ``a2`` were used (the calibration damper itself).
     bench_effects : bool
         The calibration bench's measurement-chain effects were applied.
+    model_error : dict or None
+        The :class:`ModelError` added to the bands (``as_dict()``), None when not.
     warnings : tuple of str
     versions : dict
     """
@@ -477,6 +582,7 @@ class Prediction:
     tolerance_pct: dict
     own_offsets: bool
     bench_effects: bool
+    model_error: dict | None = None
     warnings: tuple = ()
     versions: dict = field(default_factory=dict)
 
@@ -511,7 +617,7 @@ class Prediction:
             "calibrated_curvature": list(self.calibrated_curvature),
             "extrapolated_lines": int(self.extrapolated.sum()),
             "n_draws": self.n_draws, "seed": self.seed, "tolerance_pct": self.tolerance_pct,
-            "own_offsets": self.own_offsets, "bench_effects": self.bench_effects,
+            "own_offsets": self.own_offsets, "bench_effects": self.bench_effects, "model_error": self.model_error,
             "warnings": list(self.warnings), "versions": self.versions,
         }
 
@@ -554,7 +660,7 @@ def _draw_checks(n_draws):
 
 
 def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=None, n_draws: int = 300,
-            seed: int = 0, bench_effects: bool = False) -> Prediction:
+            seed: int = 0, bench_effects: bool = False, model_error: bool = True) -> Prediction:
     """The posterior predictive of a damper built with a calibrated cable (module docstring).
 
     Parameters
@@ -575,6 +681,9 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         Fixes the subset and the geometry draws.
     bench_effects : bool
         Apply the calibration bench's fitted measurement-chain effects.
+    model_error : bool
+        Add the calibration's residual scale to the bands (:func:`model_error_of`; module docstring).
+        Off, the bands are the posterior's and the tolerances' alone.
 
     Returns
     -------
@@ -596,6 +705,13 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     pick, geo = _streams(seed)
     idx = _subset(cable, n_draws, pick)
     n = idx.size
+    errors, notes = None, []
+    if model_error:
+        try:
+            errors = model_error_of(cable, seed=seed)
+        except InputError as e:
+            notes.append(f"no model error in the bands: {e}")
+    noise = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
     tolerance = _tolerance([damper], own)
     params = dict(_cable_params(cable, idx, bench_effects, own),
                   **_geometry(damper, tolerance, _unit_draws(tolerance, n, geo)))
@@ -610,10 +726,8 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     for i, level in enumerate(levels):  # a handful of test conditions; each call is vectorised
         x0 = _x0(mode, level, f)
         r = _evaluate(cable.law, effects, damper, f, x0, params, n)
-        fuu = r["fuu"]
-        out["stiffness"][i] = _quantiles(np.abs(fuu))
-        out["phase"][i] = _quantiles(np.degrees(np.angle(fuu)))
-        out["power"][i] = _quantiles(0.5 * 2 * np.pi * f * fuu.imag * x0**2)
+        err = errors.at(2e3 * x0) if errors is not None else None
+        out["stiffness"][i], out["phase"][i], out["power"][i] = _bands(r["fuu"], x0, f, err, noise)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             cmax[i] = np.nanmedian(r["cmax"], axis=0)
@@ -623,7 +737,7 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         xf = _x0(mode, level, fine)
         rf = _evaluate(cable.law, effects, damper, fine, xf, params, n)
         resonances += _resonances(fine, rf["fuu"], xf, level)
-    notes = [w for w in (cable.convergence_warning(),) if w]
+    notes = [w for w in (cable.convergence_warning(),) if w] + notes
     if not np.all(np.isfinite(cable.curvature_range)):
         notes.append(f"{cable.path}: no calibrated curvature range stored (tests_reached): extrapolation not assessed")
     if conv.min() < 1:
@@ -637,7 +751,7 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         extrapolated=extra, fold_share=fold, converged_share=conv, resonances=tuple(resonances),
         calibrated_curvature=tuple(float(v) for v in cable.curvature_range), n_draws=int(n), seed=int(seed),
         tolerance_pct={k: float(v) for k, v in tolerance.items()}, own_offsets=own, bench_effects=bool(bench_effects),
-        warnings=tuple(notes), versions=versions())
+        model_error=errors.as_dict() if errors is not None else None, warnings=tuple(notes), versions=versions())
 
 
 # --- design sweeps ----------------------------------------------------------------------------------
@@ -907,7 +1021,7 @@ def read_prediction(directory) -> Prediction:
                              for r in s["resonances"]),
             calibrated_curvature=tuple(s["calibrated_curvature"]), n_draws=s["n_draws"], seed=s["seed"],
             tolerance_pct=s["tolerance_pct"], own_offsets=s["own_offsets"], bench_effects=s["bench_effects"],
-            warnings=tuple(s["warnings"]), versions=s.get("versions", {}))
+            model_error=s.get("model_error"), warnings=tuple(s["warnings"]), versions=s.get("versions", {}))
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise InputError(f"{directory}: not a prediction written by sbcal predict ({type(e).__name__}: {e})") from None
 

@@ -20,8 +20,8 @@ from sbcal.cli import main
 from sbcal.damper import Damper, FILE_KEYS, resolve_damper, with_value
 from sbcal.fem import dynamic_stiffness, natural_frequencies
 from sbcal.hysteresis import law_for
-from sbcal.predict import (EXTRAPOLATION_MARGIN, _resonances, impedance_from_cable, load_cable_run, predict,
-                           read_prediction, read_sweep, store_prediction, store_sweep, sweep)
+from sbcal.predict import (EXTRAPOLATION_MARGIN, _resonances, impedance_from_cable, load_cable_run, model_error_of,
+                           predict, read_prediction, read_sweep, store_prediction, store_sweep, sweep)
 from sbcal.sampler import SampleResult
 from sbcal.stats import loo, read_netcdf
 
@@ -176,7 +176,7 @@ def test_cable_model_amplitude_per_set_and_line_equals_set_by_set(damper1):
 def test_own_geometry_reproduces_the_calibration_posterior_predictive(run, damper1):
     """The calibration damper at its own tests: the calibration's forward model on every stored
     draw (its lines and amplitudes from posterior.nc), the same numbers."""
-    p = predict(run, damper1, n_draws=1000, seed=3)  # default conditions: the calibration's amplitudes
+    p = predict(run, damper1, n_draws=1000, seed=3, model_error=False)  # the calibration's amplitudes
     assert p.own_offsets and p.n_draws == CHAINS * DRAWS and list(p.levels) == [0.2, 1.0]
     const = read_netcdf(run / "posterior.nc").constant_data
     f_all, amp_all = np.asarray(const["freq_hz"]), np.asarray(const["amplitude_mm_pp"])
@@ -189,24 +189,57 @@ def test_own_geometry_reproduces_the_calibration_posterior_predictive(run, dampe
             np.testing.assert_allclose(got, want, rtol=1e-9)
         assert not p.extrapolated[i].any() and p.fold_share[i].max() == 0 and p.converged_share[i].min() == 1
     # the same seed gives the same numbers; a subset is drawn by the seed
-    a, b = predict(run, damper1, amplitude_mm_pp=1.0, n_draws=10, seed=7), predict(run, damper1, amplitude_mm_pp=1.0,
-                                                                                     n_draws=10, seed=7)
+    a, b = (predict(run, damper1, amplitude_mm_pp=1.0, n_draws=10, seed=7) for _ in range(2))
     c = predict(run, damper1, amplitude_mm_pp=1.0, n_draws=10, seed=8)
     assert np.array_equal(a.stiffness_n_per_m, b.stiffness_n_per_m) and a.resonances == b.resonances
     assert not np.array_equal(a.stiffness_n_per_m, c.stiffness_n_per_m)
+
+
+def test_model_error_is_the_calibration_residual(run, damper1):
+    """The model error is the rms, per calibrated amplitude, of the stored run means about the median
+    of the calibration's model curves; the bands with it are those of the draws times independent
+    normal errors of that scale."""
+    const = read_netcdf(run / "posterior.nc")
+    f, amp = np.asarray(const.constant_data["freq_hz"]), np.asarray(const.constant_data["amplitude_mm_pp"])
+    obs = const.observed_data
+    err = model_error_of(run, n_draws=1000)
+    for k, a in enumerate((0.2, 1.0)):
+        sel = amp == a
+        ref = _reference(run, damper1, f[sel], a)
+        c = load_cable_run(run)
+        _, fm = CableForward(LAW, np.full(sel.sum(), a), np.zeros(sel.sum(), int)).state(damper1, f[sel], **c.draws)
+        rm = np.asarray(obs["logmag_mean"])[sel] - np.median(np.log(np.abs(fm)), axis=0)
+        rp = np.asarray(obs["phase_mean"])[sel] - np.median(np.angle(fm), axis=0)
+        assert err.amplitude_mm_pp[k] == a
+        assert err.logmag_sd[k] == pytest.approx(np.sqrt(np.mean(rm**2)), rel=1e-9)
+        assert err.phase_sd_deg[k] == pytest.approx(np.degrees(np.sqrt(np.mean(rp**2))), rel=1e-9)
+        assert ref[0].shape == (3, sel.sum())
+    sd_m, sd_p = err.at(np.array([0.1, 0.2, 0.447, 1.0, 3.0]))
+    np.testing.assert_allclose(sd_m[[0, 1, 3, 4]], err.logmag_sd[[0, 0, 1, 1]])  # held beyond the ends
+    assert sd_m[2] == pytest.approx(np.mean(err.logmag_sd), rel=1e-2)  # 0.447 ~ the log-midpoint of 0.2 and 1
+    # the bands widen by the error: at lines where the draws barely spread, the 90 % band of ln|f|
+    # tends to +-1.645 sd (4000 samples: +-3 %)
+    p = predict(run, NEW, amplitude_mm_pp=1.0, n_draws=1000)
+    q = predict(run, NEW, amplitude_mm_pp=1.0, n_draws=1000, model_error=False)
+    assert p.model_error == err.as_dict() and q.model_error is None
+    wide = np.log(p.stiffness_n_per_m[0, 2] / p.stiffness_n_per_m[0, 0])
+    narrow = np.log(q.stiffness_n_per_m[0, 2] / q.stiffness_n_per_m[0, 0])
+    assert np.all(wide > narrow)
+    np.testing.assert_allclose(p.stiffness_n_per_m[0, 1], q.stiffness_n_per_m[0, 1], rtol=0.01)
 
 
 def test_new_damper_takes_its_own_offsets_and_tolerances(run, damper1):
     """Another damper never gets the calibration damper's posterior offsets: with the tolerances off
     a renamed copy of damper1 is the calibration's model at the file's nominal a1, a2."""
     twin = replace(damper1, name="twin", tolerance=(("a1", 0.0), ("a2", 0.0)))
-    p = predict(run, twin, amplitude_mm_pp=1.0, n_draws=1000)
+    p = predict(run, twin, amplitude_mm_pp=1.0, n_draws=1000, model_error=False)
     assert not p.own_offsets and p.tolerance_pct == {}
     n = CHAINS * DRAWS
     ref = _reference(run, twin, STANDARD_GRID_HZ, 1.0, a1=np.full(n, damper1.a1), a2=np.full(n, damper1.a2))
     np.testing.assert_allclose(p.stiffness_n_per_m[0], ref[0], rtol=1e-9)
     # tolerances widen the band: +-5 % on the offsets and +-3 % on the arm lengths
-    wide = predict(run, replace(twin, tolerance=(("L1", 3.0), ("L2", 3.0))), amplitude_mm_pp=1.0, n_draws=1000)
+    wide = predict(run, replace(twin, tolerance=(("L1", 3.0), ("L2", 3.0))), amplitude_mm_pp=1.0, n_draws=1000,
+                   model_error=False)
     assert wide.tolerance_pct == {"L1": 3.0, "L2": 3.0, "a1": 5.0, "a2": 5.0}
     # (median 90 % width of ln|f| over the lines: 0.131 against 0.094 with these 24 draws; the
     # posterior's own 2 % scatter is already in both)
@@ -216,7 +249,7 @@ def test_new_damper_takes_its_own_offsets_and_tolerances(run, damper1):
 
 def test_velocity_mode(run):
     v = 0.1
-    p = predict(run, NEW, velocity_m_s=v, n_draws=1000)
+    p = predict(run, NEW, velocity_m_s=v, n_draws=1000, model_error=False)
     f = p.freq_hz
     np.testing.assert_allclose(p.amplitude_mm_pp[0], 2e3 * v / (2 * np.pi * f))
     c = load_cable_run(run)
@@ -233,7 +266,8 @@ def test_velocity_mode(run):
     # about the first one the median power peaks there (a median of peaks against the peak of the
     # medians: they differ by 0.4 % in frequency and 0.3 % in power here)
     r = p.resonances[0]
-    dense = predict(run, NEW, velocity_m_s=v, n_draws=1000, freq_hz=np.geomspace(0.9, 1.1, 161) * r.freq_hz[1])
+    dense = predict(run, NEW, velocity_m_s=v, n_draws=1000, freq_hz=np.geomspace(0.9, 1.1, 161) * r.freq_hz[1],
+                    model_error=False)
     top = np.argmax(dense.power_w[0, 1])
     assert dense.freq_hz[top] == pytest.approx(r.freq_hz[1], rel=0.01)
     assert dense.power_w[0, 1, top] == pytest.approx(r.power_w[1], rel=0.02)
