@@ -66,6 +66,7 @@ __all__ = [
     "EXTRAPOLATION_MARGIN",
     "RESONANCE_STEP",
     "PROMINENCE",
+    "TRACK_STEP",
     "CableRun",
     "load_cable_run",
     "ModelError",
@@ -789,7 +790,9 @@ class SweepResult:
     levels : ndarray, shape (L,)
         The test conditions (amplitudes [mm p-p] or velocities [m/s]).
     resonance_hz : ndarray, shape (V, L, K, 3)
-        The :data:`QUANTILES` of the k-th resonance's frequency [Hz] (NaN where there are fewer).
+        The :data:`QUANTILES` of the frequency [Hz] of resonance track k (NaN at values where the
+        track has no resonance). A track follows one resonance across the values (:data:`TRACK_STEP`);
+        tracks are numbered by their median frequency.
     resonance_share : ndarray, shape (V, L, K)
         Fraction of the draws that have it.
     peak_power_w : ndarray, shape (V, L, 3)
@@ -861,6 +864,36 @@ def _jsonable(a):
 
 def _unjson(x) -> np.ndarray:
     return np.array(json.loads(json.dumps(x).replace("null", "NaN")), dtype=float)
+
+
+TRACK_STEP = 0.4
+"""A resonance at the next design value continues a track when its frequency is within this distance
+in ln f of the track's last one (a factor 1.5); otherwise it starts a track of its own. The closest
+pairs are joined first, so neighbouring modes keep their tracks; a sweep too coarse for a mode to move
+less than that between values splits its track."""
+
+
+def _tracks(per_value: list) -> list:
+    """Follow resonances across design values: ``per_value[v]`` the resonances at value v (by
+    frequency); returns tracks ``[(v, Resonance), ...]``, sorted by their median frequency. Greedy:
+    the closest (track, resonance) pairs in ln f are joined first."""
+    tracks, last = [], []  # last: (ln f of the track's latest resonance, value index) per track
+    for v, found in enumerate(per_value):
+        lf = [np.log(r.freq_hz[1]) for r in found]
+        pairs = sorted((abs(a - b[0]), t, j) for t, b in enumerate(last) for j, a in enumerate(lf)
+                       if b[1] == v - 1 and abs(a - b[0]) <= TRACK_STEP)
+        used_t, used_j = set(), set()
+        for _, t, j in pairs:
+            if t not in used_t and j not in used_j:
+                tracks[t].append((v, found[j]))
+                last[t] = (lf[j], v)
+                used_t.add(t)
+                used_j.add(j)
+        for j, r in enumerate(found):
+            if j not in used_j:
+                tracks.append([(v, r)])
+                last.append((lf[j], v))
+    return sorted(tracks, key=lambda tr: np.median([r.freq_hz[1] for _, r in tr]))
 
 
 def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=None,
@@ -935,13 +968,14 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
         fuu = r["fuu"].reshape(nv, n, fine.size)
         for v in range(nv):  # peak finding per design value (a handful); vectorised over the draws
             res[v][i] = _resonances(fine, fuu[v], xf, level)
-    k_max = max((len(x) for row in res for x in row), default=0)
+    tracks = [_tracks([res[v][i] for v in range(nv)]) for i in range(nl)]
+    k_max = max((len(t) for t in tracks), default=0)
     hz = np.full((nv, nl, k_max, 3), np.nan)
     share = np.zeros((nv, nl, k_max))
-    for v in range(nv):
-        for i in range(nl):
-            for r_ in res[v][i]:
-                hz[v, i, r_.index - 1], share[v, i, r_.index - 1] = r_.freq_hz, r_.share
+    for i, level_tracks in enumerate(tracks):
+        for k, track in enumerate(level_tracks):
+            for v, r_ in track:
+                hz[v, i, k], share[v, i, k] = r_.freq_hz, r_.share
     notes = [w for w in (cable.convergence_warning(),) if w]
     if conv.min() < 1:
         notes.append(f"the cable model did not converge for {100 * (1 - conv.mean()):.2g} % of the (draw, line) pairs")
