@@ -25,8 +25,8 @@ power itself). ``R`` shows every mode of the damper where the power under consta
 by ``omega^2``, hides the lower ones. They are found on a fine grid (steps of :data:`RESONANCE_STEP` in
 ln f over the requested band): the peaks of the median curve of ``ln R`` over the draws (prominence
 :data:`PROMINENCE`) define windows between the minima that separate them, and each draw's resonance is
-its maximum inside the window (refined by a parabola in ln R over ln f), counted only where that
-maximum is interior to the window; ``share`` is the fraction of draws that have it. Resonances are
+its local maximum inside the window nearest the median's peak (refined by a parabola in ln R over
+ln f); ``share`` is the fraction of draws that have one. Resonances are
 numbered by frequency at each condition (a peak that appears or vanishes in a design sweep shifts
 the numbers of those above it).
 
@@ -171,10 +171,11 @@ class CableRun:
         bad = [n for n, p in s.get("parameters", {}).items()
                if not (p.get("r_hat", np.inf) <= POLICY["rhat_max"]
                        and min(p.get("ess_bulk", 0), p.get("ess_tail", 0)) >= POLICY["ess_min"])]
-        which = f"R-hat > {POLICY['rhat_max']} or ESS < {POLICY['ess_min']:.0f} for {', '.join(bad)}" if bad else \
-            "every parameter passes R-hat and ESS"
-        return (f"{self.path}: the cable posterior did not converge ({s.get('reason') or 'no reason stored'}; "
-                f"{which}): the bands may be too narrow or misplaced")
+        which = (f"R-hat > {POLICY['rhat_max']} or ESS < {POLICY['ess_min']:.0f} for {', '.join(bad)}" if bad
+                 else "every parameter passes R-hat and ESS")
+        why = str(s.get("reason") or "no reason stored").split(":")[0].split(";")[0]  # its first clause
+        return (f"{self.path}: the cable posterior did not converge ({why}; {which}): the bands may be too "
+                "narrow or misplaced")
 
 
 def load_cable_run(run) -> CableRun:
@@ -350,7 +351,7 @@ class Resonance:
     power_w : tuple of float
         (q05, median, q95) of the dissipated power at it [W].
     share : float
-        Fraction of the draws that have it (an interior maximum of the resistance in its window).
+        Fraction of the draws that have it (a local maximum of the resistance in its window).
     """
 
     level: float
@@ -386,10 +387,14 @@ def _resonances(f_fine, fuu, x0, level: float) -> list:
     for k in range(peaks.size):  # a handful of peaks; vectorised over the draws
         a, b = bounds[k], bounds[k + 1]
         sub = filled[:, a:b + 1]
-        j = np.argmax(sub, axis=1)
+        # each draw's local maximum nearest the median's peak (a window may also hold a rising edge)
+        top = np.zeros(sub.shape, dtype=bool)
+        top[:, 1:-1] = (sub[:, 1:-1] >= sub[:, :-2]) & (sub[:, 1:-1] > sub[:, 2:]) & np.isfinite(sub[:, 1:-1])
+        dist = np.where(top, np.abs(np.arange(sub.shape[1]) - (peaks[k] - a))[None, :], sub.shape[1])
+        j = np.argmin(dist, axis=1)
         jj = np.clip(j, 1, sub.shape[1] - 2)
         y0, y1, y2 = sub[rows, jj - 1], sub[rows, jj], sub[rows, jj + 1]
-        interior = (j > 0) & (j < sub.shape[1] - 1) & np.isfinite(y0) & np.isfinite(y1) & np.isfinite(y2)
+        interior = top[rows, j] & np.isfinite(y0) & np.isfinite(y2)
         if not interior.any():
             continue
         with np.errstate(invalid="ignore", divide="ignore"):

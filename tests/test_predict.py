@@ -321,6 +321,18 @@ def test_resonances_are_the_peaks_of_the_resistance():
         assert r.power_w[1] == pytest.approx(np.interp(r.freq_hz[1], dense, p_dense), rel=1e-3)
 
 
+def test_a_rising_edge_at_the_band_end_is_no_resonance():
+    """A window reaching the band's end may hold a larger value than its peak (a resistance rising to a
+    mode just beyond the band): each draw's resonance is its local maximum nearest the median's peak."""
+    f = np.geomspace(4.0, 40.0, 462)
+    lorentz = lambda f0, w: 1.0 / (1.0 + ((f - f0) / w) ** 2)  # noqa: E731
+    scale = np.array([1.0, 1.02, 0.98])[:, None]
+    r = 1.0 + 3.0 * lorentz(9.0 * scale, 0.8) + 2.0 * lorentz(20.0 * scale, 1.5) + 8.0 * lorentz(39.8, 1.5)
+    fuu = 2 * np.pi * f * r * 1j + 1.0  # Im f = omega R
+    res = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    assert [round(x.freq_hz[1], 1) for x in res] == [9.0, 20.0] and all(x.share == 1.0 for x in res)
+
+
 def test_sweep_equals_single_predictions_and_moves_the_resonance(run):
     values = np.array([0.20, 0.24, 0.28])
     s = sweep(run, NEW, "cable.length1_m", values, amplitude_mm_pp=[1.0], n_draws=8, seed=4)
