@@ -40,7 +40,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from sbcal import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.amplitude import fit_law, points_from_runs  # noqa: E402
 from sbcal.bench import load_bench, remove_outlier_runs, write_bench  # noqa: E402
 from sbcal.damper import Damper  # noqa: E402
