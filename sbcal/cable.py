@@ -104,17 +104,22 @@ def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
     return out, n_sets
 
 
-def _grid(freq_hz, amplitude_mm_pp, segments):
-    """Validated frequencies [Hz], amplitudes [mm p-p] and test segments, each shape (n_freq,)."""
+def _grid(freq_hz, amplitude_mm_pp, segments, per_set=False):
+    """Validated frequencies [Hz], amplitudes [mm p-p] and test segments, each shape (n_freq,)
+    (``per_set``: amplitudes may also be (n_sets or 1, n_freq), returned 2-D then)."""
     f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
     if f.ndim != 1 or not np.all(np.isfinite(f) & (f > 0)):
         raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
     amp = np.asarray(amplitude_mm_pp, dtype=float)
-    if amp.ndim > 1 or amp.size not in (1, f.size):
-        raise InputError(f"amplitude_mm_pp: expected a scalar or shape ({f.size},), got shape {amp.shape}")
-    amp = np.broadcast_to(amp.reshape(-1), f.shape)
+    if per_set and amp.ndim == 2 and amp.shape[1] == f.size:
+        pass  # one amplitude per (set, line)
+    elif amp.ndim > 1 or amp.size not in (1, f.size):
+        shapes = f"({f.size},)" + (f" or (n_sets, {f.size})" if per_set else "")
+        raise InputError(f"amplitude_mm_pp: expected a scalar or shape {shapes}, got shape {amp.shape}")
+    else:
+        amp = np.broadcast_to(amp.reshape(-1), f.shape)
     if not np.all(np.isfinite(amp) & (amp > 0)):
-        raise InputError("amplitude_mm_pp: expected finite amplitudes > 0 [mm p-p], scalar or shape (n_freq,)")
+        raise InputError("amplitude_mm_pp: expected finite amplitudes > 0 [mm p-p]")
     seg = segments_from_frequencies(f) if segments is None else np.asarray(segments)
     if seg.shape != f.shape:
         raise InputError(f"segments: expected shape {f.shape}, got {seg.shape}")
@@ -539,8 +544,8 @@ class CableModel:
             a = np.stack(np.broadcast_arrays(a1, a2), axis=-1).reshape(-1, 1, 2)
             return np.broadcast_to(a, (n_sets, nf, 2)).reshape(-1)
 
-        def per_line(v):
-            return np.broadcast_to(v[None, :, None], (n_sets, nf, 2)).reshape(-1)
+        def per_line(v):  # (nf,) or (n_sets or 1, nf) -> flat
+            return np.broadcast_to(v.reshape(-1, nf)[:, :, None], (n_sets, nf, 2)).reshape(-1)
 
         L = full(p["L1"], p["L2"])
         m, J = full(p["m1"], p["m2"]), full(p["J1"], p["J2"])
@@ -723,8 +728,9 @@ class CableModel:
             Nominal geometry (every geometry parameter not given).
         freq_hz : array_like, shape (n_freq,)
             Frequency lines [Hz] (several tests may be concatenated; see ``segments``).
-        amplitude_mm_pp : float or array_like, shape (n_freq,)
-            Commanded base amplitude per line [mm peak-to-peak].
+        amplitude_mm_pp : float or array_like, shape (n_freq,) or (n_sets, n_freq)
+            Commanded base amplitude per line [mm peak-to-peak]; 2-D: one per parameter set and line
+            (e.g. a span's clamp amplitude per posterior draw; the same numbers as set-by-set calls).
         segments : array_like of int, shape (n_freq,), optional
             Test index per line (a sweep restarts at each test's first line); default: a new test
             wherever the frequency does not increase (:func:`segments_from_frequencies`). Used by
@@ -754,7 +760,11 @@ class CableModel:
     def _run(self, damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full):
         law_names = self.law.parameter_names if self.law is not None else ()
         p, n_sets = _resolve(self.parameter_names, _BASE[:2] + law_names, damper, params)
-        f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments)
+        f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments, per_set=True)
+        if amp.ndim == 2 and amp.shape[0] > 1:  # one amplitude per (set, line): the rows are sets
+            if n_sets not in (1, amp.shape[0]):
+                raise InputError(f"amplitude_mm_pp: {amp.shape[0]} rows (sets) where the parameters have {n_sets}")
+            n_sets = amp.shape[0]
         valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
         if self.law is not None:
             valid = valid & self.law.valid(**{k: p[k] for k in law_names})
@@ -784,7 +794,7 @@ class CableModel:
         force = (fa * p_load[0] + fb * p_load[1] + fc).reshape(n_sets, omega.size, 2).sum(axis=-1)
         r = p["rocking_rad_per_m"][:, None]
         body = -(omega**2)[None, :] * p["mc"][:, None] * (1 + p["ac"][:, None] * r)
-        return np.broadcast_to(force / x0[None, :] + body, (n_sets, omega.size)).copy()
+        return np.broadcast_to(force / x0.reshape(-1, omega.size) + body, (n_sets, omega.size)).copy()
 
     def _assemble(self, table, arms, sol, fold, iterations, p, n_sets, omega, x0) -> CableState:
         (p0, p1), step, _ = sol
@@ -817,6 +827,8 @@ class CableModel:
         keep = np.flatnonzero(valid)
         nf, q = f.size, int(self.sections)
         sub = {k: (v[keep] if v.size == n_sets and n_sets > 1 else v) for k, v in p.items()}
+        if amp.ndim == 2 and amp.shape[0] == n_sets > 1:
+            amp = amp[keep]
         if not full:
             out = np.full((n_sets, nf), np.nan + 0j)
             if keep.size:

@@ -593,6 +593,98 @@ def _cmd_cable(args) -> int:
     return 0
 
 
+# --- predict -----------------------------------------------------------------------------------
+
+def _add_predict(sub):
+    p = sub.add_parser("predict", help="a new damper from the calibrated cable: dynamic stiffness, power, resonances",
+                       description="The posterior predictive of a damper built with a calibrated cable (docs/predict.md): "
+                                   "dynamic stiffness (magnitude, phase), dissipated power and the resonance frequencies, "
+                                   "each as median and 90 % band, propagating the cable posterior and the damper's "
+                                   "tolerances; lines that bend the arms beyond the calibrated curvature are marked. "
+                                   "Stored as <runs>/<calibration damper>/predict-<damper>-<state>/.")
+    p.add_argument("--cable", required=True, metavar="RUN",
+                   help="stored cable-law posterior written by 'sbcal cable' (e.g. runs/damper1/cable-dry)")
+    p.add_argument("--damper", required=True, metavar="NAME|PATH", help="the new damper: bundled name or TOML path")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--amplitude", type=float, nargs="+", metavar="MM",
+                      help="constant clamp amplitudes [mm p-p] (default: the calibration's constant-amplitude tests)")
+    mode.add_argument("--velocity", type=float, nargs="+", metavar="M_PER_S",
+                      help="constant clamp velocities [m/s] (IEC 61897's characteristic test, e.g. 0.1)")
+    p.add_argument("--frequencies", default="standard", metavar="standard|LIST",
+                   help="'standard' (37 lines, 4-40 Hz) or comma-separated Hz; a sweep's resonance search spans them")
+    p.add_argument("--sweep", metavar="NAME=START:STOP:N",
+                   help="design sweep of a damper-file field (e.g. cable.length1_m=0.15:0.30:7): resonances and peak "
+                        "power against it")
+    p.add_argument("--draws", type=int, default=None, metavar="N",
+                   help="posterior draws used (default 300; 200 for a sweep)")
+    p.add_argument("--no-model-error", action="store_true",
+                   help="bands of the cable posterior and the tolerances alone, without the calibration's residual "
+                        "scale (docs/predict.md)")
+    p.add_argument("--bench-effects", action="store_true",
+                   help="apply the calibration bench's fitted measurement-chain effects (delay, fixture mass, rocking)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("-o", "--output", metavar="OUT.csv", help="also write the CSV here")
+    p.add_argument("--plot", metavar="PNG", help="also write the figure here")
+    return p
+
+
+def _cmd_predict(args) -> int:
+    from .damper import resolve_damper
+    from .predict import (load_cable_run, parse_sweep, plot_prediction, plot_sweep, predict, store_prediction,
+                          store_sweep, sweep, write_csv)
+
+    cable = load_cable_run(args.cable)
+    damper = resolve_damper(args.damper)
+    freq = _parse_frequencies(args.frequencies)
+    if args.draws is not None and args.draws < 2:
+        raise InputError(f"--draws {args.draws}: must be >= 2")
+    meta = {"made_by": args.command_line}
+    warning = cable.convergence_warning()
+    if warning:
+        print(f"sbcal: warning: {warning}", file=sys.stderr)
+    unit = "m/s" if args.velocity else "mm p-p"
+    if args.sweep:
+        key, values = parse_sweep(args.sweep)
+        res = sweep(cable, damper, key, values, amplitude_mm_pp=args.amplitude, velocity_m_s=args.velocity,
+                    freq_hz=freq, n_draws=args.draws or 200, seed=args.seed, bench_effects=args.bench_effects)
+        out = store_sweep(res, meta=meta)
+        print(f"{damper.name}: sweep of {key} over {values[0]:g}..{values[-1]:g} ({values.size} values), "
+              f"{cable.damper} {cable.state} cable ({cable.law}), {res.n_draws} draws")
+        for i, lv in enumerate(res.levels):
+            for v, x in enumerate(values):
+                hz = res.resonance_hz[v, i]
+                peaks = ", ".join(f"{q[1]:.3g}" for q in hz if np.isfinite(q[1]))
+                flag = "  EXTRAPOLATED" if res.extrapolated[v, i] else ""
+                print(f"  {lv:g} {unit}, {key} = {x:g}: resonances {peaks or '-'} Hz; peak power "
+                      f"{res.peak_power_w[v, i, 1]:.3g} W{flag}")
+        plot = plot_sweep
+    else:
+        res = predict(cable, damper, amplitude_mm_pp=args.amplitude, velocity_m_s=args.velocity, freq_hz=freq,
+                      n_draws=args.draws or 300, seed=args.seed, bench_effects=args.bench_effects,
+                      model_error=not args.no_model_error)
+        out = store_prediction(res, meta=meta)
+        print(f"{damper.name}: predicted with the {cable.damper} {cable.state} cable ({cable.law}), {res.n_draws} draws"
+              + (" (the calibration damper: its posterior offsets)" if res.own_offsets else ""))
+        for i, lv in enumerate(res.levels):
+            rs = [r for r in res.resonances if r.level == lv]
+            text = "; ".join(f"{r.freq_hz[1]:.3g} [{r.freq_hz[0]:.3g}, {r.freq_hz[2]:.3g}] Hz" for r in rs) or "none"
+            n_ex, folds = int(res.extrapolated[i].sum()), res.freq_hz[res.fold_share[i] > 0]
+            print(f"  {lv:g} {unit}: resonances {text}; peak power {np.nanmax(res.power_w[i, 1]):.3g} W"
+                  + (f"; {n_ex} extrapolated lines ({res.freq_hz[res.extrapolated[i]].min():g}-"
+                     f"{res.freq_hz[res.extrapolated[i]].max():g} Hz)" if n_ex else "")
+                  + (f"; folds at {', '.join(f'{x:g}' for x in folds)} Hz" if folds.size else ""))
+        for w in res.warnings:
+            if w != warning:
+                print(f"sbcal: warning: {w}", file=sys.stderr)
+        plot = plot_prediction
+    if args.output:
+        write_csv(res, args.output)
+    if args.plot:
+        plot(res, args.plot)
+    print(f"stored in {out}/" + (f"; wrote {args.output}" if args.output else "") + (f" and {args.plot}" if args.plot else ""))
+    return 0
+
+
 # One line per subcommand; each helper pair lives above, in the order of this table.
 _COMMANDS = {
     "simulate": (_add_simulate, _cmd_simulate),
@@ -604,6 +696,7 @@ _COMMANDS = {
     "bench": (_add_bench, _cmd_bench),
     "diagnose": (_add_diagnose, _cmd_diagnose),
     "cable": (_add_cable, _cmd_cable),
+    "predict": (_add_predict, _cmd_predict),
 }
 
 

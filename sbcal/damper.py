@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
 from .errors import InputError
 
-__all__ = ["Damper", "load_damper", "bundled_dampers", "resolve_damper"]
+__all__ = ["Damper", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
+           "DEFAULT_TOLERANCE_PCT", "with_value"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,12 @@ class Damper:
         Free text.
     source : str
         Where the description was read from ("" when built in code).
+    tolerance : tuple of (str, float)
+        Manufacturing tolerances the file states (its optional ``[tolerance]`` table): pairs
+        ``(field, percent)``, a field of this class (``m1``, ``a1``, ``L1`` ...) and its +- tolerance
+        in percent of its nominal value, sorted by field. Not part of the model: only predictions
+        for a new damper (:mod:`sbcal.predict`) use them, with :data:`DEFAULT_TOLERANCE_PCT` for
+        the fields not stated (:meth:`tolerances`).
     """
 
     name: str
@@ -61,6 +68,13 @@ class Damper:
     ej_static: float
     description: str = ""
     source: str = ""
+    tolerance: tuple = ()
+
+    def tolerances(self) -> dict:
+        """+- tolerance in percent per field: the file's, and :data:`DEFAULT_TOLERANCE_PCT` where it
+        states none (fields with 0 are left out)."""
+        out = dict(DEFAULT_TOLERANCE_PCT, **dict(self.tolerance))
+        return {k: v for k, v in out.items() if v > 0}
 
     @property
     def total_mass(self) -> float:
@@ -84,6 +98,62 @@ _FIELDS = (
     ("cable", "linear_density_kg_m", "mu", True, "nonneg"),
     ("cable", "ej_static_nm2", "ej_static", True, "pos"),
 )
+
+
+FILE_KEYS = {f"{table}.{key}": field for table, key, field, _, _ in _FIELDS}
+"""Damper-file key (``"mass1.offset_m"``) -> :class:`Damper` field (``"a1"``)."""
+
+_CHECKS = {field: check for _, _, field, _, check in _FIELDS}
+
+DEFAULT_TOLERANCE_PCT = {"a1": 5.0, "a2": 5.0, "ac": 5.0}
+"""Tolerances [+- %] of the fields a damper file's ``[tolerance]`` table does not state: the thesis's
+5 % on the centre-of-mass offsets (Table 4.4: a1, a2 within +-5 % of nominal)."""
+
+_NO_TOLERANCE = {"ej_static": "the cable's rigidity comes from its calibration, not from the damper file"}
+
+
+def _tolerance(doc: dict, path: str) -> tuple:
+    """The optional ``[tolerance]`` table: ``"mass1.offset_m" = 5`` (or ``[tolerance.mass1]`` with
+    ``offset_m = 5``), percent >= 0 and < 100 of the nominal value; returns sorted (field, percent)."""
+    table = doc.get("tolerance")
+    if table is None:
+        return ()
+    if not isinstance(table, dict):
+        raise InputError(f"{path}: key 'tolerance': expected a table, got {type(table).__name__}")
+    flat = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update({f"{key}.{k}": v for k, v in value.items()})
+        else:
+            flat[key] = value
+    out = {}
+    for key, value in flat.items():
+        full = f"tolerance.{key}"
+        field = FILE_KEYS.get(key)
+        if field is None or field in _NO_TOLERANCE:
+            why = _NO_TOLERANCE.get(field) or "unknown key; known: " + ", ".join(
+                k for k, f in FILE_KEYS.items() if f not in _NO_TOLERANCE)
+            raise InputError(f"{path}: key '{full}': {why}")
+        x = _number(path, full, value, "nonneg")
+        if x >= 100:
+            raise InputError(f"{path}: key '{full}': a tolerance in percent must be below 100, got {value!r}")
+        out[field] = x
+    return tuple(sorted(out.items()))
+
+
+def with_value(damper: Damper, key: str, value: float, *, where: str | None = None) -> Damper:
+    """A copy of ``damper`` with one damper-file field (``"cable.length1_m"``) or :class:`Damper` field
+    (``"L1"``) set to ``value``, checked as the file reader checks it (errors name ``where``, default
+    the damper's file)."""
+    field = FILE_KEYS.get(key, key if key in _CHECKS else None)
+    if field is None:
+        raise InputError(f"unknown damper field {key!r}; known: {', '.join(FILE_KEYS)}")
+    file_key = next(k for k, f in FILE_KEYS.items() if f == field)
+    try:
+        x = value if isinstance(value, bool) else float(value)  # numpy scalars as plain floats
+    except (TypeError, ValueError):
+        x = value  # _number names the wrong type
+    return replace(damper, **{field: _number(where or damper.source or "<damper>", file_key, x, _CHECKS[field])})
 
 
 def _number(path: str, key: str, value, check: str) -> float:
@@ -124,7 +194,7 @@ def parse_damper(doc: dict, path: str = "<damper>") -> Damper:
             values[field] = 0.0
             continue
         values[field] = _number(path, full, section[key], check)
-    return Damper(name=name, description=description, source=path, **values)
+    return Damper(name=name, description=description, source=path, tolerance=_tolerance(doc, path), **values)
 
 
 def load_damper(path) -> Damper:
@@ -133,7 +203,8 @@ def load_damper(path) -> Damper:
     Parameters
     ----------
     path : str or path-like
-        The TOML file. Extra keys are allowed and ignored.
+        The TOML file. Extra keys are allowed and ignored, except inside the optional
+        ``[tolerance]`` table (see :attr:`Damper.tolerance`), whose keys must be damper-file fields.
 
     Returns
     -------
@@ -143,7 +214,8 @@ def load_damper(path) -> Damper:
     ------
     InputError
         One line naming the file and key: missing file or key, malformed TOML, a value of the
-        wrong type, a non-positive mass, length or EJ_static, a negative density or inertia, a non-finite value.
+        wrong type, a non-positive mass, length or EJ_static, a negative density or inertia, a non-finite value,
+        an unknown key or a value outside [0, 100) in ``[tolerance]``.
     """
     p = Path(path)
     try:

@@ -100,7 +100,8 @@ def file_digest(path=None, bundled: str = "default.toml") -> str:
 
 
 def _damper_digest(damper: Damper) -> str:
-    return inputs_digest({k: v for k, v in asdict(damper).items() if k != "source"})
+    # tolerances matter to predictions only: a calibration's inputs are the nominal values
+    return inputs_digest({k: v for k, v in asdict(damper).items() if k not in ("source", "tolerance")})
 
 
 def _version() -> str:

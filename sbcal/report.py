@@ -3,7 +3,8 @@
 One ``index.html`` with its PNG figures beside it (``figures/``); opens from disk with no server
 and no network. Per damper: data quality, then per test the fit (runs, mean, posterior-predictive
 band), dissipated power, the parameter table with convergence diagnostics, corner and trace plots;
-across tests the amplitude map. Missing pieces (a test not sampled yet) are shown as missing.
+across tests the amplitude map. Missing pieces (a test not sampled yet) are shown as missing. Each prediction of a new damper from a calibrated cable
+(``predict-*/``, :mod:`sbcal.predict`) gets a section of its own.
 """
 
 from __future__ import annotations
@@ -269,6 +270,35 @@ def _diagnosis(path: Path, figs: Path):
     return doc
 
 
+def _predictions(damper_dir: Path, figs: Path) -> list:
+    """The stored predictions beside a damper's cable runs (``predict-*/``), ready for the page, each
+    figure redrawn from the store."""
+    from .predict import plot_prediction, plot_sweep, stored_predictions
+
+    out = []
+    for d, pred, sweeps in stored_predictions(damper_dir):
+        stem = f"{damper_dir.name}_{d.name}"
+        item = {"name": d.name, "prediction": pred, "sweeps": [], "figure": None, "resonances": []}
+        if pred is not None:
+            item["figure"] = plot_prediction(pred, figs / f"{stem}.png").name
+            unit = "mm p-p" if pred.mode == "amplitude" else "m/s"
+            for i, lv in enumerate(pred.levels):
+                rs = [r for r in pred.resonances if r.level == lv]
+                ex = pred.freq_hz[pred.extrapolated[i]]
+                item["resonances"].append({
+                    "level": f"{lv:g} {unit}",
+                    "resonances": "; ".join(f"{eng(r.freq_hz[1])} [{eng(r.freq_hz[0])}, {eng(r.freq_hz[2])}]"
+                                            + (f" ({r.share:.0%} of draws)" if r.share < 0.95 else "") for r in rs) or "none",
+                    "peak_power": eng(float(np.nanmax(pred.power_w[i, 1]))),
+                    "extrapolated": f"{ex.size} lines, {ex.min():g}-{ex.max():g} Hz" if ex.size else "none",
+                    "folds": ", ".join(f"{f:g}" for f in pred.freq_hz[pred.fold_share[i] > 0]) or "none"})
+        for k, sw in enumerate(sweeps):
+            item["sweeps"].append({"field": sw.field, "result": sw,
+                                   "figure": plot_sweep(sw, figs / f"{stem}_sweep{k}.png").name})
+        out.append(item)
+    return out
+
+
 def _fmt(v, digits=4):
     return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
 
@@ -373,7 +403,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
             cv_fig = _cv_figure(data["quality"], figs / f"{dname}_cv.png")
         bench_note = "" if data else f"no cleaning stage stored ({data_path} is missing; 'sbcal run' writes it)"
         dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note,
-                        "diagnosis": _diagnosis(runs / dname / "diagnose.json", figs)})
+                        "diagnosis": _diagnosis(runs / dname / "diagnose.json", figs),
+                        "predictions": _predictions(runs / dname, figs)})
 
     say("report: amplitude map")
     docs = stored_maps(runs)

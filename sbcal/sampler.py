@@ -15,16 +15,25 @@ Steps:
 1. **Start**: the posterior mode, from a differential-evolution search over the prior box (or the
    caller's ``start``), polished by L-BFGS-B.
 2. **Ensembles**: ``n_ensembles`` independent ensembles of walkers, each started from its own seed
-   (its walkers drawn from the Laplace approximation at the mode; a small ball where the mode sits on
-   a bound) and moved by differential evolution within itself (:class:`_Ensembles`), all held side by
-   side in one ``emcee.EnsembleSampler`` so that one vectorised log-density call advances every
-   ensemble (``workers > 1`` splits them over processes). Each ensemble draws from its own generator,
-   so the draws do not depend on the number of workers or on how the run is cut into rounds.
+   (its walkers drawn from the Laplace approximation at the mode; from each parameter's own
+   curvature where the Hessian is not negative definite, a small ball where even that fails) and
+   moved within itself (:class:`_Ensembles`) by differential evolution and, in a fraction
+   ``independence`` of the proposals, by an independence move: a draw from a multivariate t fitted
+   to the ensemble's own kept steps at the end of the previous round (the Laplace approximation in
+   the first round, where it is negative definite). All are held side by side in one
+   ``emcee.EnsembleSampler`` so that one vectorised log-density call advances every ensemble
+   (``workers > 1`` splits them over processes). Each ensemble draws from its own generator and
+   sees only its own steps, so the ensembles are independent chains and the draws do not depend on
+   the number of workers.
 3. **The convergence policy** (:data:`POLICY`, the one place it is set): after discarding the first
    ``burn_fraction`` of every chain, the kept run must be at least ``tau_factor`` integrated
    autocorrelation times of every parameter long, and across the ensembles R-hat <= 1.01 and bulk and
-   tail ESS >= 400 for every parameter. Rounds continue until it holds or ``max_steps``; a run that
-   stops at the cap is marked ``converged = False`` with the reason.
+   tail ESS >= 400 for every parameter. Rounds continue until it holds or ``max_steps`` (each round
+   to the length the autocorrelation asks for, at most doubling the run: the estimate falls as the
+   proposals improve); a run that stops at the cap is marked ``converged = False`` with the reason.
+   The independence proposals change only between rounds, from the past steps, so every round's
+   kernel leaves the posterior invariant (a finite adaptation; what it costs in the first rounds is
+   what the burn-in and the diagnostics see).
 4. **Draws**: each ensemble is a chain; its draws are its walkers' thinned steps, walker after walker
    (thinned by at least half the largest autocorrelation time, and enough to keep ``max_draws``).
 """
@@ -80,6 +89,10 @@ class SamplerConfig:
         The differential-evolution search for the start (when the caller gives none).
     workers : int
         Processes for the ensembles (the draws do not depend on it); 1 runs them in this process.
+    independence : float
+        From the second round on, the fraction of proposals drawn independently of the walker from a
+        multivariate t fitted to the ensemble's own kept steps (:class:`_Ensembles`); 0 moves by
+        differential evolution alone.
     """
 
     nwalkers: int = 24
@@ -93,6 +106,7 @@ class SamplerConfig:
     de_population: int = 48
     de_generations: int = 150
     workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
+    independence: float = 0.5
 
     def __post_init__(self):
         if self.n_ensembles < POLICY["min_ensembles"]:
@@ -101,6 +115,8 @@ class SamplerConfig:
             raise ValueError(f"tau_factor {self.tau_factor} < {POLICY['tau_factor']} needs a stated tau_reason")
         if not 0 <= self.burn_fraction < 1 or self.first_steps < 1 or self.max_steps < self.first_steps:
             raise ValueError("burn_fraction in [0, 1), 1 <= first_steps <= max_steps")
+        if not 0 <= self.independence < 1:
+            raise ValueError(f"independence {self.independence}: a fraction in [0, 1)")
 
     def policy(self) -> str:
         """The rule this configuration applies, in words (stored and shown with every result)."""
@@ -222,10 +238,11 @@ def _start(target, start, rng, config) -> np.ndarray:
     return res.x if np.isfinite(res.fun) and res.fun <= f0 else z0
 
 
-def _laplace(target, z0) -> np.ndarray | None:
-    """Covariance of the Laplace approximation at the mode ``z0`` (finite-difference Hessian of the
-    log-density in one batched call, a few steps inside the box where the mode is on a bound), or
-    None where it is not positive definite."""
+def _laplace(target, z0) -> tuple:
+    """``(cov, full)``: the covariance of the Laplace approximation at the mode ``z0`` (finite-difference
+    Hessian of the log-density in one batched call, a few steps inside the box where the mode is on a
+    bound) and True; where the Hessian is not negative definite, the diagonal one of each parameter's
+    own curvature and False, or ``(None, False)`` where that is not negative either."""
     prior = target.prior
     d = prior.ndim
     h = 1e-4 * (prior.z_upper - prior.z_lower)
@@ -248,8 +265,18 @@ def _laplace(target, z0) -> np.ndarray | None:
         cov = np.linalg.inv(-hess)
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        return None
-    return cov
+        # not a maximum in every direction (a mode on a bound, a kink of the model): each parameter's
+        # own curvature, where that is negative
+        curv = -np.diag(hess)
+        return (np.diag(1.0 / curv), False) if np.all(curv > 0) else (None, False)
+    return cov, True
+
+
+def _capped_chol(prior, cov) -> np.ndarray:
+    """Cholesky factor of the Laplace covariance with every spread capped at a tenth of the box."""
+    sd = np.sqrt(np.diag(cov))
+    cap = np.minimum(1.0, 0.1 * (prior.z_upper - prior.z_lower) / sd)
+    return np.linalg.cholesky(cov * np.outer(cap, cap))
 
 
 def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
@@ -258,10 +285,7 @@ def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
     tenth of the box, for directions the mode barely constrains) or, without one, from a small ball."""
     prior = target.prior
     width = prior.z_upper - prior.z_lower
-    if cov is not None:
-        sd = np.sqrt(np.diag(cov))
-        cap = np.minimum(1.0, 0.1 * width / sd)
-        chol = np.linalg.cholesky(cov * np.outer(cap, cap))
+    chol = None if cov is None else _capped_chol(prior, cov)
     p0 = np.empty((nwalkers, prior.ndim))
     filled, scale = 0, 1.0 if cov is not None else 1e-3
     for _ in range(60):
@@ -284,22 +308,68 @@ def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
 
 # --- the ensembles -------------------------------------------------------------------------
 
+_T_DOF = 5.0  # the independence proposal's t: heavier tails than a near-Gaussian posterior
+
+
+@dataclass(frozen=True)
+class _TProposal:
+    """A multivariate t over the sampled coordinates (location ``mean``, scale ``chol chol^T``, ``_T_DOF``
+    degrees of freedom): one ensemble's independence proposal."""
+
+    mean: np.ndarray
+    chol: np.ndarray
+
+    def draw(self, rng, n) -> np.ndarray:
+        y = rng.standard_normal((n, self.mean.size)) @ self.chol.T
+        return self.mean + y * np.sqrt(_T_DOF / rng.chisquare(_T_DOF, n))[:, None]
+
+    def log_density(self, x) -> np.ndarray:
+        """Up to a constant."""
+        u = np.linalg.solve(self.chol, (x - self.mean).T)
+        return -0.5 * (_T_DOF + self.mean.size) * np.log1p(np.sum(u * u, axis=0) / _T_DOF)
+
+
+def _fit_proposal(chain) -> _TProposal | None:
+    """The t proposal of one ensemble from its own kept steps ``(steps, walkers, ndim)`` (their mean and
+    covariance), or None where they do not span every direction."""
+    x = chain.reshape(-1, chain.shape[-1])
+    cov = np.atleast_2d(np.cov(x.T))
+    sd = np.sqrt(np.diag(cov))
+    if not np.all(np.isfinite(sd) & (sd > 0)):
+        return None
+    try:
+        chol = np.linalg.cholesky(cov + 1e-10 * np.diag(np.diag(cov)))
+    except np.linalg.LinAlgError:
+        return None
+    return _TProposal(mean=x.mean(axis=0), chol=chol)
+
+
 class _Ensembles(emcee.moves.Move):
-    """Differential-evolution moves for several independent ensembles held side by side in one emcee
-    sampler, so that one vectorised log-density call advances all of them.
+    """Moves for several independent ensembles held side by side in one emcee sampler, so that one
+    vectorised log-density call advances all of them.
 
     Walkers ``[g W, (g + 1) W)`` form ensemble g. Each step, every ensemble splits its walkers in two
-    halves at random and moves each half by the differential-evolution proposal
-    ``x + gamma (x_a - x_b)`` with ``x_a != x_b`` drawn from its own other half (ter Braak 2006;
-    ``gamma = 2.38 / sqrt(2 ndim)`` with a 1e-5 relative jitter as emcee's ``DEMove``, and ``gamma = 1``
-    in a tenth of the proposals, ter Braak's jump between modes), accepted by Metropolis. An ensemble
-    never sees another's walkers and draws every random number from its own generator, so the
-    ensembles are independent, independently seeded chains: the same as running them one by one, in
-    any grouping over processes.
+    halves at random and moves each half, accepted by Metropolis-Hastings, by
+
+    - differential evolution: ``x + gamma (x_a - x_b)`` with ``x_a != x_b`` drawn from its own other
+      half (ter Braak 2006; ``gamma = 2.38 / sqrt(2 ndim)`` with a 1e-5 relative jitter as emcee's
+      ``DEMove``, and ``gamma = 1`` in a tenth of the proposals, ter Braak's jump between modes);
+    - or, with probability ``independence`` where the ensemble has a proposal, an independence move:
+      a draw from that ensemble's multivariate t (:class:`_TProposal`, fitted by :func:`sample` to the
+      ensemble's own earlier steps and fixed for the round), accepted with the ratio
+      ``p(x') q(x) / (p(x) q(x'))``. Where the posterior is close to its Gaussian approximation it
+      decorrelates a walker in a few steps, where differential evolution needs ~4 ndim; where it is
+      not (curved, several modes), it is mostly rejected and differential evolution does the work.
+
+    An ensemble never sees another's walkers and draws every random number from its own generator, so
+    the ensembles are independent, independently seeded chains: the same as running them one by one,
+    in any grouping over processes.
     """
 
-    def __init__(self, n_walkers: int, generators):
+    def __init__(self, n_walkers: int, generators, proposals=None, independence: float = 0.0):
         self.n_walkers, self.generators = n_walkers, list(generators)
+        self.proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
+        self.independence = independence
 
     def propose(self, model, state):
         coords, w = state.coords, self.n_walkers
@@ -308,13 +378,20 @@ class _Ensembles(emcee.moves.Move):
         accepted = np.zeros(len(coords), dtype=bool)
         for h in (0, 1):
             moving, proposals, log_u = [], [], []
-            for perm, rng in zip(halves, self.generators):
+            for perm, rng, tp in zip(halves, self.generators, self.proposals):
                 s, c = (perm[: w // 2], perm[w // 2:]) if h == 0 else (perm[w // 2:], perm[: w // 2])
                 a = rng.integers(len(c), size=len(s))
                 b = (a + rng.integers(1, len(c), size=len(s))) % len(c)  # a pair of distinct walkers
                 gamma = np.where(rng.random(len(s)) < 0.1, 1.0, gamma0 * (1 + 1e-5 * rng.standard_normal(len(s))))
-                proposals.append(coords[s] + gamma[:, None] * (coords[c[a]] - coords[c[b]]))
-                log_u.append(np.log(rng.random(len(s))))
+                q = coords[s] + gamma[:, None] * (coords[c[a]] - coords[c[b]])
+                lu = np.log(rng.random(len(s)))
+                if tp is not None and self.independence > 0:
+                    indep = rng.random(len(s)) < self.independence
+                    q = np.where(indep[:, None], tp.draw(rng, len(s)), q)
+                    # Metropolis-Hastings: the proposal's density ratio moves the threshold
+                    lu = lu - np.where(indep, tp.log_density(coords[s]) - tp.log_density(q), 0.0)
+                proposals.append(q)
+                log_u.append(lu)
                 moving.append(s)
             idx, q, log_u = np.concatenate(moving), np.concatenate(proposals), np.concatenate(log_u)
             new_lp, _ = model.compute_log_prob_fn(q)
@@ -327,18 +404,18 @@ class _Ensembles(emcee.moves.Move):
 def _advance(job):
     """Run some ensembles (side by side) ``steps`` further; module-level so a process can run it.
 
-    ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), steps)``; returns the
-    chain, the log-probabilities, the final coords/log-probs, the generators' states and the
-    acceptance counts per walker.
+    ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), proposals (G,),
+    independence, steps)``; returns the chain, the log-probabilities, the final coords/log-probs, the
+    generators' states and the acceptance counts per walker.
     """
-    target, coords, log_prob, gen_states, steps = job
+    target, coords, log_prob, gen_states, proposals, independence, steps = job
     generators = []
     for st in gen_states:
         g = np.random.Generator(np.random.PCG64())
         g.bit_generator.state = st
         generators.append(g)
     n, ndim = coords.shape
-    move = _Ensembles(n // len(generators), generators)
+    move = _Ensembles(n // len(generators), generators, proposals, independence)
     sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
     state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
     return (sampler.get_chain(), sampler.get_log_prob(), state.coords, state.log_prob,
@@ -425,7 +502,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
     with progress_bar(progress, total=None, unit="step") as bar:
         bar.set_postfix_str("finding the mode")
         z0 = _start(target, start, np.random.default_rng(seqs[0]), config)
-        cov = _laplace(target, z0)
+        cov, full = _laplace(target, z0)
         coords, gens = [], []
         for ss in seqs[1:]:  # each ensemble: its own start and its own generator
             rng = np.random.default_rng(ss)
@@ -438,13 +515,17 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         chains, lps = [], []
         accepted = np.zeros(len(coords))
         n, block = 0, min(config.first_steps, config.max_steps)
+        # the first round's independence proposal: the Laplace approximation at the mode
+        first = _TProposal(mean=z0, chol=_capped_chol(prior, cov)) if full else None
+        proposals = [first] * config.n_ensembles
         pool = ProcessPoolExecutor(max_workers=len(groups)) if len(groups) > 1 else None
         try:
             while True:
                 jobs = []
                 for grp in groups:
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
-                    jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp], block))
+                    jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp],
+                                 [proposals[e] for e in grp], config.independence, block))
                 pieces_c, pieces_l = [], []
                 for grp, (c, lp, cs, ls, gs, acc) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
@@ -471,7 +552,10 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 # the next round: to the length the autocorrelation asks for (5 % beyond, as the estimate
                 # grows with the run), or half again when only R-hat or ESS are short
                 more = int(math.ceil(1.05 * need)) - n if need > n else n // 2
-                block = min(max(more, n // 10, 50), config.max_steps - n)
+                # at most doubling the run: the estimate of tau falls as the proposals improve
+                block = min(max(more, n // 10, 50), n, config.max_steps - n)
+                if config.independence > 0:  # each ensemble's proposal from its own kept steps
+                    proposals = [_fit_proposal(c[burn:]) for c in per]
         finally:
             if pool:
                 pool.shutdown()

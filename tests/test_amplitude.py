@@ -57,8 +57,12 @@ def test_table_mode_recovers_known_exponent(tmp_path, capsys):
     assert d["powerlaw"]["n"][1] <= 0.37 <= d["powerlaw"]["n"][2]
     assert abs(d["powerlaw"]["n"][0] - 0.37) < 0.005 and abs(d["powerlaw"]["k"][0] - 12.5) < 0.1
     assert d["powerlaw"]["convergence"]["converged"]
-    # exact values leave the saturating law's c and n unidentified: that fit is reported, flagged
-    assert not d["saturating"]["convergence"]["converged"] and not d["converged"]
+    # exact values leave the saturating law's EJ_inf undetermined (it runs down towards its box's
+    # floor, where the law is the power law): its 90 % interval spans decades (measured: 29x), and the
+    # power law stays preferred. (The engine once failed to converge on this posterior; it now does,
+    # with the quantiles of a differential-evolution-only run of 15000 steps.)
+    lo, hi = d["saturating"]["EJ_inf"][1:]
+    assert hi / lo > 10 and d["preferred"] == "powerlaw"
 
 
 def _saturating_points(rng, ej_inf, c, n, sd):

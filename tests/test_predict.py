@@ -1,0 +1,457 @@
+"""sbcal.predict: a new damper from a stored cable-law posterior (docs/predict.md).
+
+The stored posterior is made here in seconds: draws scattered about a known iwan5 cable (the law's
+own curves as the bench recordings), packed by the real writer :func:`sbcal.cable_fit.store_cable`.
+What is tested is the prediction's plumbing and its numbers, not the sampler.
+"""
+
+import pickle
+from dataclasses import asdict, replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sbcal import STANDARD_GRID_HZ, InputError, load_damper
+from sbcal.bench import curves_to_frame, load_bench, write_bench
+from sbcal.cable import CableModel
+from sbcal.cable_fit import CableFit, CableForward, cable_config, cable_likelihood, store_cable
+from sbcal.cli import main
+from sbcal.damper import Damper, FILE_KEYS, resolve_damper, with_value
+from sbcal.fem import dynamic_stiffness, natural_frequencies
+from sbcal.hysteresis import law_for
+from sbcal.predict import (EXTRAPOLATION_MARGIN, _resonances, impedance_from_cable, load_cable_run, model_error_of,
+                           predict, read_prediction, read_sweep, store_prediction, store_sweep, sweep)
+from sbcal.sampler import SampleResult
+from sbcal.stats import loo, read_netcdf
+
+LAW = "iwan5"
+TRUTH = dict(EJ_min=4.4, beta_material=0.11, delta_EJ=42.0, chi_micro=3e-4, chi_macro=0.03, density_exponent=-1.0,
+             macro_ratio=0.05)
+TESTS = ("0.2-0.2", "1-1")
+CHAINS, DRAWS = 2, 12
+# a clearly different geometry: lighter masses, longer arms
+NEW = Damper(name="newdamper", m1=2.2, J1=0.0095, a1=0.022, m2=1.5, J2=0.004, a2=-0.012, mc=1.05, Jc=0.0015,
+             ac=0.0, L1=0.26, L2=0.17, mu=0.53, ej_static=113.0)
+
+
+def _store(root, *, converged=True, seed=0):
+    """A cable-law run of damper1 in ``root/runs/damper1/cable-dry``; returns its directory."""
+    d = resolve_damper("damper1")
+    rng = np.random.default_rng(seed)
+    model = CableModel(law_for(LAW))
+    frames = []
+    for t in TESTS:
+        a = float(t.split("-")[0])
+        fuu = model.dynamic_stiffness(d, STANDARD_GRID_HZ, a, **TRUTH)[0]
+        noise = 0.01 * (rng.standard_normal((6, fuu.size)) + 1j * rng.standard_normal((6, fuu.size)))
+        frames.append(curves_to_frame(d.name, t, STANDARD_GRID_HZ, a, fuu[None] * np.exp(noise)))
+    write_bench(pd.concat(frames, ignore_index=True), root / "bench.csv")
+    like = cable_likelihood(d, load_bench(root / "bench.csv"), list(TESTS), LAW)
+    draws = {}
+    for n in like.prior.names:
+        base = TRUTH.get(n, getattr(d, n, None))
+        z = rng.standard_normal((CHAINS, DRAWS))
+        draws[n] = base + 0.03 * z if n == "density_exponent" else base * np.exp(0.02 * z)
+    ll = like.pointwise_log_likelihood({n: v.ravel() for n, v in draws.items()}).reshape(CHAINS, DRAWS, -1)
+    one = {n: 1.0 for n in like.prior.names}
+    many = {n: 1e3 for n in like.prior.names}
+    res = SampleResult(names=tuple(like.prior.names), draws=draws, log_prob=np.zeros((CHAINS, DRAWS)), log_likelihood=ll,
+                       tau=one, acceptance=np.full(CHAINS, 0.3), r_hat=dict(one, chi_macro=1.2 if not converged else 1.0),
+                       ess_bulk=many, ess_tail=many, n_steps=100, burn=20, thin=1, converged=converged,
+                       reason="" if converged else "R-hat above 1.01", start={}, wall_s=0.0,
+                       config=cable_config(len(like.prior.names)))
+    fit = CableFit(damper=d.name, state="dry", law=LAW, tests=TESTS, effects=(), result=res, like=like, loo=loo(ll))
+    out = root / "runs" / d.name / "cable-dry"
+    store_cable(fit, out, meta={"seed": seed, "made_by": "test", "damper_values": asdict(d)})
+    return out
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return _store(tmp_path_factory.mktemp("cable"))
+
+
+def _reference(run, damper, freq, amp, **overrides):
+    """Quantiles of |f|, phase and power from the calibration's own forward model on every stored draw."""
+    c = load_cable_run(run)
+    params = dict(c.draws, **overrides)
+    _, fm = CableForward(LAW, np.broadcast_to(amp, freq.shape), np.zeros(freq.size, int)).state(damper, freq, **params)
+    x0 = np.broadcast_to(amp, freq.shape) / 2e3
+    power = 0.5 * 2 * np.pi * freq * fm.imag * x0**2
+    q = (0.05, 0.5, 0.95)
+    return (np.quantile(np.abs(fm), q, axis=0), np.quantile(np.degrees(np.angle(fm)), q, axis=0),
+            np.quantile(power, q, axis=0))
+
+
+# --- the damper file's tolerances -----------------------------------------------------------------
+
+BASE = """
+name = "x"
+[clamp]
+mass_kg = 1.0
+inertia_kg_m2 = 0.001
+[mass1]
+mass_kg = 2.5
+inertia_kg_m2 = 0.01
+offset_m = 0.025
+[mass2]
+mass_kg = 2.0
+inertia_kg_m2 = 0.008
+offset_m = -0.015
+[cable]
+length1_m = 0.18
+length2_m = 0.14
+linear_density_kg_m = 0.5
+ej_static_nm2 = 100.0
+"""
+
+
+def test_tolerance_table_is_optional_and_checked(tmp_path):
+    p = tmp_path / "d.toml"
+    p.write_text(BASE)
+    plain = load_damper(p)
+    assert plain.tolerance == () and plain.tolerances() == {"a1": 5.0, "a2": 5.0, "ac": 5.0}  # the thesis's 5 %
+    p.write_text(BASE + '[tolerance]\n"mass1.mass_kg" = 2\n"mass1.offset_m" = 0\n[tolerance.cable]\nlength1_m = 1.5\n')
+    d = load_damper(p)
+    assert replace(d, tolerance=()) == plain  # the model's values are unchanged
+    assert d.tolerance == (("L1", 1.5), ("a1", 0.0), ("m1", 2.0))
+    assert d.tolerances() == {"L1": 1.5, "a2": 5.0, "ac": 5.0, "m1": 2.0}  # 0 switches a default off
+    for bad, match in (('"mass1.colour" = 3', r"key 'tolerance.mass1.colour': unknown key; known: clamp.mass_kg"),
+                       ('"cable.ej_static_nm2" = 3', r"tolerance.cable.ej_static_nm2': the cable's rigidity comes from"),
+                       ('"mass2.mass_kg" = 100', r"below 100, got 100"),
+                       ('"mass2.mass_kg" = -1', r"must be >= 0"),
+                       ('"mass2.mass_kg" = "a lot"', r"expected a number")):
+        p.write_text(BASE + "[tolerance]\n" + bad + "\n")
+        with pytest.raises(InputError, match=match) as e:
+            load_damper(p)
+        assert "\n" not in str(e.value) and str(p) in str(e.value)
+
+
+def test_tolerances_leave_the_calibration_inputs_unchanged():
+    """The run store's digest of a damper is the one before tolerances existed: stored runs stay valid."""
+    from sbcal.pipeline import _damper_digest, inputs_digest
+
+    d = resolve_damper("damper1")
+    before = inputs_digest({k: v for k, v in asdict(d).items() if k not in ("source", "tolerance")})
+    assert _damper_digest(d) == _damper_digest(replace(d, tolerance=(("m1", 2.0),))) == before
+
+
+def test_with_value_checks_like_the_reader():
+    d = resolve_damper("damper1")
+    assert with_value(d, "cable.length1_m", np.float64(0.3)).L1 == 0.3
+    assert with_value(d, "m2", 2).m2 == 2.0
+    with pytest.raises(InputError, match=r"key 'cable.length1_m': must be > 0, got -0.1"):
+        with_value(d, "cable.length1_m", -0.1)
+    with pytest.raises(InputError, match="unknown damper field"):
+        with_value(d, "cable.colour", 1.0)
+    assert set(FILE_KEYS.values()) == {"mc", "Jc", "ac", "m1", "J1", "a1", "m2", "J2", "a2", "L1", "L2", "mu", "ej_static"}
+
+
+# --- the cable model with one amplitude per (set, line) --------------------------------------------
+
+def test_cable_model_amplitude_per_set_and_line_equals_set_by_set(damper1):
+    rng = np.random.default_rng(5)
+    model = CableModel(law_for(LAW))
+    f = np.linspace(4.0, 40.0, 25)
+    ej = TRUTH["EJ_min"] * np.exp(0.1 * rng.standard_normal(4))
+    amp = np.exp(rng.uniform(np.log(0.05), np.log(3.0), (4, f.size)))
+    for continuation in (False, True):
+        st = model.state(damper1, f, amp, continuation=continuation, **dict(TRUTH, EJ_min=ej))
+        for i in range(4):
+            one = model.state(damper1, f, amp[i], continuation=continuation, **dict(TRUTH, EJ_min=ej[i]))
+            # sets are independent: the grouping changes nothing but the rounding
+            np.testing.assert_allclose(st.f_uu[i], one.f_uu[0], rtol=1e-12)
+            np.testing.assert_allclose(st.curvature_range[i], one.curvature_range[0], rtol=1e-12)
+    # one row broadcasts over the sets; scalar parameters take the sets from the amplitudes
+    np.testing.assert_allclose(model.dynamic_stiffness(damper1, f, amp[:1], **dict(TRUTH, EJ_min=ej))[2],
+                               model.dynamic_stiffness(damper1, f, amp[0], **dict(TRUTH, EJ_min=ej[2]))[0], rtol=1e-12)
+    assert model.dynamic_stiffness(damper1, f, amp, **TRUTH).shape == (4, f.size)
+    with pytest.raises(InputError, match="3 rows"):
+        model.dynamic_stiffness(damper1, f, amp[:3], **dict(TRUTH, EJ_min=ej))
+
+
+# --- predictions ----------------------------------------------------------------------------------
+
+def test_own_geometry_reproduces_the_calibration_posterior_predictive(run, damper1):
+    """The calibration damper at its own tests: the calibration's forward model on every stored
+    draw (its lines and amplitudes from posterior.nc), the same numbers."""
+    p = predict(run, damper1, n_draws=1000, seed=3, model_error=False)  # the calibration's amplitudes
+    assert p.own_offsets and p.n_draws == CHAINS * DRAWS and list(p.levels) == [0.2, 1.0]
+    const = read_netcdf(run / "posterior.nc").constant_data
+    f_all, amp_all = np.asarray(const["freq_hz"]), np.asarray(const["amplitude_mm_pp"])
+    test = np.asarray(const["line_test"]).astype(str)
+    for i, t in enumerate(TESTS):
+        sel = test == t
+        ref = _reference(run, damper1, f_all[sel], amp_all[sel])
+        np.testing.assert_allclose(p.freq_hz, f_all[sel])
+        for got, want in zip((p.stiffness_n_per_m[i], p.phase_deg[i], p.power_w[i]), ref):
+            np.testing.assert_allclose(got, want, rtol=1e-9)
+        assert not p.extrapolated[i].any() and p.fold_share[i].max() == 0 and p.converged_share[i].min() == 1
+    # the same seed gives the same numbers; a subset is drawn by the seed
+    a, b = (predict(run, damper1, amplitude_mm_pp=1.0, n_draws=10, seed=7) for _ in range(2))
+    c = predict(run, damper1, amplitude_mm_pp=1.0, n_draws=10, seed=8)
+    assert np.array_equal(a.stiffness_n_per_m, b.stiffness_n_per_m) and a.resonances == b.resonances
+    assert not np.array_equal(a.stiffness_n_per_m, c.stiffness_n_per_m)
+
+
+def test_model_error_is_the_calibration_residual(run, damper1):
+    """The model error is the rms, per calibrated amplitude, of the stored run means about the median
+    of the calibration's model curves; the bands with it are those of the draws times independent
+    normal errors of that scale."""
+    const = read_netcdf(run / "posterior.nc")
+    f, amp = np.asarray(const.constant_data["freq_hz"]), np.asarray(const.constant_data["amplitude_mm_pp"])
+    obs = const.observed_data
+    err = model_error_of(run, n_draws=1000)
+    for k, a in enumerate((0.2, 1.0)):
+        sel = amp == a
+        ref = _reference(run, damper1, f[sel], a)
+        c = load_cable_run(run)
+        _, fm = CableForward(LAW, np.full(sel.sum(), a), np.zeros(sel.sum(), int)).state(damper1, f[sel], **c.draws)
+        rm = np.asarray(obs["logmag_mean"])[sel] - np.median(np.log(np.abs(fm)), axis=0)
+        rp = np.asarray(obs["phase_mean"])[sel] - np.median(np.angle(fm), axis=0)
+        assert err.amplitude_mm_pp[k] == a
+        assert err.logmag_sd[k] == pytest.approx(np.sqrt(np.mean(rm**2)), rel=1e-9)
+        assert err.phase_sd_deg[k] == pytest.approx(np.degrees(np.sqrt(np.mean(rp**2))), rel=1e-9)
+        assert ref[0].shape == (3, sel.sum())
+    sd_m, sd_p = err.at(np.array([0.1, 0.2, 0.447, 1.0, 3.0]))
+    np.testing.assert_allclose(sd_m[[0, 1, 3, 4]], err.logmag_sd[[0, 0, 1, 1]])  # held beyond the ends
+    assert sd_m[2] == pytest.approx(np.mean(err.logmag_sd), rel=1e-2)  # 0.447 ~ the log-midpoint of 0.2 and 1
+    # the bands widen by the error: at lines where the draws barely spread, the 90 % band of ln|f|
+    # tends to +-1.645 sd (4000 samples: +-3 %)
+    p = predict(run, NEW, amplitude_mm_pp=1.0, n_draws=1000)
+    q = predict(run, NEW, amplitude_mm_pp=1.0, n_draws=1000, model_error=False)
+    assert p.model_error == err.as_dict() and q.model_error is None
+    wide = np.log(p.stiffness_n_per_m[0, 2] / p.stiffness_n_per_m[0, 0])
+    narrow = np.log(q.stiffness_n_per_m[0, 2] / q.stiffness_n_per_m[0, 0])
+    assert np.all(wide > narrow)
+    np.testing.assert_allclose(p.stiffness_n_per_m[0, 1], q.stiffness_n_per_m[0, 1], rtol=0.01)
+
+
+def test_new_damper_takes_its_own_offsets_and_tolerances(run, damper1):
+    """Another damper never gets the calibration damper's posterior offsets: with the tolerances off
+    a renamed copy of damper1 is the calibration's model at the file's nominal a1, a2."""
+    twin = replace(damper1, name="twin", tolerance=(("a1", 0.0), ("a2", 0.0)))
+    p = predict(run, twin, amplitude_mm_pp=1.0, n_draws=1000, model_error=False)
+    assert not p.own_offsets and p.tolerance_pct == {}
+    n = CHAINS * DRAWS
+    ref = _reference(run, twin, STANDARD_GRID_HZ, 1.0, a1=np.full(n, damper1.a1), a2=np.full(n, damper1.a2))
+    np.testing.assert_allclose(p.stiffness_n_per_m[0], ref[0], rtol=1e-9)
+    # tolerances widen the band: +-5 % on the offsets and +-3 % on the arm lengths
+    wide = predict(run, replace(twin, tolerance=(("L1", 3.0), ("L2", 3.0))), amplitude_mm_pp=1.0, n_draws=1000,
+                   model_error=False)
+    assert wide.tolerance_pct == {"L1": 3.0, "L2": 3.0, "a1": 5.0, "a2": 5.0}
+    # (median 90 % width of ln|f| over the lines: 0.131 against 0.094 with these 24 draws; the
+    # posterior's own 2 % scatter is already in both)
+    width = np.log(wide.stiffness_n_per_m[0, 2] / wide.stiffness_n_per_m[0, 0])
+    assert np.median(width) > 1.2 * np.median(np.log(p.stiffness_n_per_m[0, 2] / p.stiffness_n_per_m[0, 0]))
+
+
+def test_velocity_mode(run):
+    v = 0.1
+    p = predict(run, NEW, velocity_m_s=v, n_draws=1000, model_error=False)
+    f = p.freq_hz
+    np.testing.assert_allclose(p.amplitude_mm_pp[0], 2e3 * v / (2 * np.pi * f))
+    c = load_cable_run(run)
+    n = CHAINS * DRAWS
+    zero = {k: np.zeros(n) for k in ("a1", "a2")}
+    # the reference: the same unit draws of the offsets, from the same seed, through the model
+    from sbcal.predict import _geometry, _streams, _tolerance, _unit_draws
+    _, geo = _streams(0)
+    tol = _tolerance([NEW], False)
+    overrides = dict(zero, **_geometry(NEW, tol, _unit_draws(tol, n, geo)))
+    ref = _reference(run, NEW, f, 2e3 * v / (2 * np.pi * f), **overrides)
+    np.testing.assert_allclose(p.power_w[0], ref[2], rtol=1e-9)
+    # under constant velocity the power is 0.5 R v^2, so a resonance is the power's peak: on a dense grid
+    # about the first one the median power peaks there (a median of peaks against the peak of the
+    # medians: they differ by 0.4 % in frequency and 0.3 % in power here)
+    r = p.resonances[0]
+    dense = predict(run, NEW, velocity_m_s=v, n_draws=1000, freq_hz=np.geomspace(0.9, 1.1, 161) * r.freq_hz[1],
+                    model_error=False)
+    top = np.argmax(dense.power_w[0, 1])
+    assert dense.freq_hz[top] == pytest.approx(r.freq_hz[1], rel=0.01)
+    assert dense.power_w[0, 1, top] == pytest.approx(r.power_w[1], rel=0.02)
+    assert p.labels() == ["v0.1"] and c.law == LAW
+
+
+def test_extrapolation_marks_where_the_arms_bend_beyond_the_calibration(run):
+    """The calibration reached 0.2 and 1 mm on damper1: NEW at 0.5 mm stays inside, at 4 mm it bends the
+    arms beyond, and under 0.1 m/s at its first resonance (X0 = v / omega = 2.3 mm there)."""
+    c = load_cable_run(run)
+    hi = c.curvature_range[1]
+    p = predict(run, NEW, amplitude_mm_pp=[0.5, 4.0], n_draws=12)
+    assert not p.extrapolated[0].any()
+    assert p.extrapolated[1].sum() >= 5
+    np.testing.assert_array_equal(p.extrapolated, p.curvature_max > hi * (1 + EXTRAPOLATION_MARGIN))
+    frame = p.to_frame()
+    assert frame.loc[frame.test == "4-4", "extrapolated"].sum() == p.extrapolated[1].sum()
+    v = predict(run, NEW, velocity_m_s=0.1, n_draws=12)
+    first = v.resonances[0].freq_hz[1]
+    assert v.extrapolated[0, np.argmin(np.abs(v.freq_hz - first))] and not v.extrapolated[0, v.freq_hz > 30].any()
+
+
+def test_resonances_are_the_peaks_of_the_resistance():
+    """Light damping: the resistance Im f / omega peaks at the clamped-base natural frequencies (the
+    shift is O(beta^2) ~ 1e-4 here; the fine grid's parabola adds < 0.1 %)."""
+    d = resolve_damper("damper1")
+    rng = np.random.default_rng(2)
+    ej = 9.0 * np.exp(0.03 * rng.standard_normal(40))
+    f = np.geomspace(3.0, 60.0, 601)
+    fuu = dynamic_stiffness(d, f, EJ=ej, beta=0.01)
+    res = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    fn = natural_frequencies(d, EJ=ej)
+    assert len(res) == 4 and all(r.share == 1.0 for r in res)
+    for k, r in enumerate(res):
+        assert r.freq_hz[1] == pytest.approx(np.median(fn[:, k]), rel=2e-3)
+        assert r.freq_hz[0] == pytest.approx(np.quantile(fn[:, k], 0.05), rel=3e-3)
+    # one draw at loss factor 0.05: the power at each resonance is 0.5 R (omega X0)^2 at its frequency
+    # (X0 = 1 mm), against a 40x denser grid: the grid's parabola errs by <= 3.3e-4 in power and 5e-5
+    # in frequency here (at loss factor 0.01 the peaks are ~2 steps wide and the power falls short by
+    # up to 9 %: docs/predict.md)
+    fuu = dynamic_stiffness(d, f, EJ=9.0, beta=0.05)
+    dense = np.geomspace(3.0, 60.0, 24001)
+    fd = dynamic_stiffness(d, dense, EJ=9.0, beta=0.05)[0]
+    p_dense = 0.5 * 2 * np.pi * dense * fd.imag * 1e-6
+    peaks = dense[1:-1][(fd.imag[1:-1] / dense[1:-1] > fd.imag[:-2] / dense[:-2])
+                        & (fd.imag[1:-1] / dense[1:-1] > fd.imag[2:] / dense[2:])]
+    one = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    assert len(one) == peaks.size == 4
+    for r, fp in zip(one, peaks):
+        assert r.freq_hz[1] == pytest.approx(fp, rel=2e-4)
+        assert r.power_w[1] == pytest.approx(np.interp(r.freq_hz[1], dense, p_dense), rel=1e-3)
+
+
+def test_a_rising_edge_at_the_band_end_is_no_resonance():
+    """A window reaching the band's end may hold a larger value than its peak (a resistance rising to a
+    mode just beyond the band): each draw's resonance is its local maximum nearest the median's peak."""
+    f = np.geomspace(4.0, 40.0, 462)
+    lorentz = lambda f0, w: 1.0 / (1.0 + ((f - f0) / w) ** 2)  # noqa: E731
+    scale = np.array([1.0, 1.02, 0.98])[:, None]
+    r = 1.0 + 3.0 * lorentz(9.0 * scale, 0.8) + 2.0 * lorentz(20.0 * scale, 1.5) + 8.0 * lorentz(39.8, 1.5)
+    fuu = 2 * np.pi * f * r * 1j + 1.0  # Im f = omega R
+    res = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    assert [round(x.freq_hz[1], 1) for x in res] == [9.0, 20.0] and all(x.share == 1.0 for x in res)
+
+
+def test_sweep_equals_single_predictions_and_moves_the_resonance(run):
+    values = np.array([0.20, 0.24, 0.28])
+    s = sweep(run, NEW, "cable.length1_m", values, amplitude_mm_pp=[1.0], n_draws=8, seed=4)
+    assert s.resonance_hz.shape[:2] == (3, 1) and s.peak_power_w.shape == (3, 1, 3)
+    for v, x in enumerate(values):
+        p = predict(run, with_value(NEW, "cable.length1_m", x), amplitude_mm_pp=1.0, n_draws=8, seed=4)
+        got = s.resonance_hz[v, 0][np.isfinite(s.resonance_hz[v, 0, :, 1])]
+        np.testing.assert_allclose(sorted(map(tuple, got)), [r.freq_hz for r in p.resonances], rtol=1e-9)
+    first = s.resonance_hz[:, 0, 0, 1]
+    assert np.all(np.diff(first) < 0)  # a longer arm lowers the first resonance (one track throughout)
+    frame = s.to_frame()
+    assert list(frame["value"]) == list(values) and {"resonance1_hz", "peak_power_q95", "extrapolated"} <= set(frame)
+
+
+def test_resonance_tracks_follow_a_peak_across_design_values():
+    from sbcal.predict import Resonance, _tracks
+
+    def r(f):
+        return Resonance(level=1.0, index=0, freq_hz=(f, f, f), power_w=(1.0, 1.0, 1.0), share=1.0)
+
+    # a low mode falling with the value, a middle one vanishing at the third value, a high one steady
+    per_value = [[r(9.0), r(24.0), r(38.0)], [r(8.0), r(23.5), r(38.1)], [r(7.3), r(38.2)], [r(6.6), r(38.2)]]
+    tracks = _tracks(per_value)
+    freqs = [[round(x.freq_hz[1], 1) for _, x in t] for t in tracks]
+    assert freqs == [[9.0, 8.0, 7.3, 6.6], [24.0, 23.5], [38.0, 38.1, 38.2, 38.2]]
+    assert [v for v, _ in tracks[1]] == [0, 1]
+
+
+def test_store_read_and_csv(run, tmp_path):
+    p = predict(run, NEW, amplitude_mm_pp=[0.5, 4.0], n_draws=12)
+    d = store_prediction(p, tmp_path / "pred")
+    assert {x.name for x in d.iterdir()} == {"prediction.csv", "prediction.png", "summary.json"}
+    q = read_prediction(d)
+    for name in ("stiffness_n_per_m", "phase_deg", "power_w", "amplitude_mm_pp", "extrapolated", "fold_share"):
+        np.testing.assert_allclose(getattr(q, name), getattr(p, name), rtol=1e-9)
+    assert q.resonances == p.resonances and q.warnings == p.warnings
+    text = (d / "prediction.csv").read_text().splitlines()
+    assert text[0] == ("damper,test,run,frequency_hz,amplitude_mm_pp,stiffness_n_per_m,phase_deg,stiffness_q05,"
+                       "stiffness_q95,phase_q05,phase_q95,power_w,power_q05,power_q95,extrapolated")
+    assert text[1].startswith("newdamper,0.5-0.5,0,4,0.5,") and text[1].endswith(",false")
+    assert any(line.endswith(",true") for line in text)
+    # the rows are bench rows: the bench reader takes them (run 0 is the median)
+    assert load_bench(d / "prediction.csv").tests("newdamper") == ["0.5-0.5", "4-4"]
+    s = sweep(run, NEW, "mass2.mass_kg", [1.2, 1.8], amplitude_mm_pp=[1.0], n_draws=4)
+    sd = store_sweep(s, tmp_path / "sweep")
+    t = read_sweep(sd)
+    np.testing.assert_allclose(t.resonance_hz, s.resonance_hz, equal_nan=True)
+    np.testing.assert_allclose(t.peak_power_w, s.peak_power_w)
+
+
+def test_impedance_for_the_span(run):
+    from sbcal.conductor import resolve_conductor
+    from sbcal.span import energy_balance
+
+    imp = impedance_from_cable(run, NEW, n_draws=6, seed=1)
+    f = np.array([8.0, 15.0, 30.0])
+    amp = np.array([[1e-4, 5e-4, 2e-3]] * imp.n_draws) * np.arange(1, imp.n_draws + 1)[:, None]
+    k = imp(f, amp)
+    assert k.shape == (imp.n_draws, 3) and np.all(k.imag > 0)
+    model = CableModel(law_for(LAW))
+    for i in range(imp.n_draws):  # each (draw, line) its own steady state at its own amplitude
+        one = model.dynamic_stiffness(NEW, f, 2e3 * amp[i], **{n: v[i] for n, v in imp.params.items()})
+        np.testing.assert_allclose(k[i], one[0], rtol=1e-12)
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(imp))(f, amp), k)
+    np.testing.assert_array_equal(imp(f, amp[:1]), imp(f, np.repeat(amp[:1], imp.n_draws, axis=0)))
+    r = energy_balance(resolve_conductor("drake"), imp, 1.0, n_freq=4)
+    assert r.ymax_m.shape == (imp.n_draws, 4) and np.isfinite(r.ymax_m).any()
+
+
+# --- the command line and the report --------------------------------------------------------------
+
+def test_cli_predict_and_report(run, tmp_path, capsys):
+    import shutil
+
+    runs = tmp_path / "runs"
+    shutil.copytree(run.parent.parent, runs)
+    cable = runs / "damper1" / "cable-dry"
+    toml = tmp_path / "new.toml"
+    toml.write_text(BASE.replace('name = "x"', 'name = "newdamper"') + '[tolerance]\n"cable.length1_m" = 2\n')
+    out = tmp_path / "p.csv"
+    rc = main(["predict", "--cable", str(cable), "--damper", str(toml), "--amplitude", "0.5", "1", "--draws", "6",
+               "-o", str(out), "--plot", str(tmp_path / "p.png")])
+    text = capsys.readouterr().out
+    assert rc == 0 and "resonances" in text and out.is_file() and (tmp_path / "p.png").is_file()
+    stored = runs / "damper1" / "predict-newdamper-dry"
+    assert (stored / "prediction.csv").read_bytes() == out.read_bytes()
+    rc = main(["predict", "--cable", str(cable), "--damper", str(toml), "--velocity", "0.1", "--draws", "4",
+               "--sweep", "cable.length1_m=0.16:0.2:2"])
+    assert rc == 0 and (stored / "sweep-cable.length1_m" / "sweep.csv").is_file()
+    assert main(["report", "--runs", str(runs), "-o", str(tmp_path / "rep")]) == 0
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "newdamper: predicted from the damper1 dry cable" in page and "Design sweep: cable.length1_m" in page
+    for name in ("damper1_predict-newdamper-dry.png", "damper1_predict-newdamper-dry_sweep0.png"):
+        assert (tmp_path / "rep" / "figures" / name).is_file()
+
+
+def test_cli_predict_bad_input_is_one_line(run, tmp_path, capsys):
+    incomplete = tmp_path / "inc.toml"
+    incomplete.write_text(BASE.replace("length2_m = 0.14\n", ""))
+    cases = [
+        (["--cable", str(tmp_path / "nope"), "--damper", "damper1"], "no such cable run"),
+        (["--cable", str(run.parent), "--damper", "damper1"], "no cable-law run here"),
+        (["--cable", str(run), "--damper", str(tmp_path / "missing.toml")], "no such file"),
+        (["--cable", str(run), "--damper", str(incomplete)], "key 'cable.length2_m': missing"),
+        (["--cable", str(run), "--damper", "damper1", "--amplitude", "0"], "--amplitude 0: must be > 0"),
+        (["--cable", str(run), "--damper", "damper1", "--velocity", "-0.1"], "--velocity -0.1: must be > 0"),
+        (["--cable", str(run), "--damper", "damper1", "--sweep", "cable.length1_m=0.1:0.2"], "expected NAME=START:STOP:N"),
+        (["--cable", str(run), "--damper", "damper1", "--sweep", "cable.ej_static_nm2=50:90:3"],
+         "does not change a prediction"),
+    ]
+    for argv, match in cases:
+        assert main(["predict"] + argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert match in err and "\n" not in err, (argv, err)
+
+
+def test_cli_warns_on_a_non_converged_posterior(tmp_path, capsys):
+    cable = _store(tmp_path, converged=False)
+    assert main(["predict", "--cable", str(cable), "--damper", "damper1", "--amplitude", "1", "--draws", "3"]) == 0
+    err = capsys.readouterr().err
+    assert "warning" in err and "did not converge" in err and "for chi_macro" in err
+    assert read_prediction(cable.parent / "predict-damper1-dry").warnings[0].endswith("misplaced")
