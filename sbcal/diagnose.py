@@ -350,6 +350,34 @@ def _signatures(tests, likes, mu_mean, mu_var, z) -> dict:
     return out
 
 
+def _rocking_signature(fits, tests, likes, mean, var, h: float = 0.05) -> tuple[float, float]:
+    """Share of a cable model's misfit that clamp rocking explains to first order, and its value [rad/m].
+
+    The regressor is ``d ln f / d r`` at ``r = 0`` of the verdict's cable model at its posterior median
+    (central difference, step ``h`` rad/m), per state's tests.
+    """
+    from .cable_fit import CableForward
+
+    index = {t: i for i, t in enumerate(tests)}
+    r_all, w_all, x_all = [], [], []
+    for (_, state), fit in sorted(fits.items()):
+        like, fwd = fit["like"], fit["like"].model
+        med = {n: np.array([np.median(v)]) for n, v in fit["params"].items()}
+        rocking = CableForward(fwd.law, fwd.amplitude_mm_pp, fwd.segments, ("base_rocking",), fwd.sections)
+        freq = np.concatenate([lk.freq_hz for lk in like.likes])
+        lo, hi = (rocking(like.damper, freq, **med, rocking_rad_per_m=np.array([r]))[0] for r in (-h, h))
+        d = np.log(hi / lo) / (2 * h)  # a ratio near 1: no phase wrap
+        for t, piece in zip(state_tests(tests)[state], np.split(d, np.cumsum([lk.freq_hz.size for lk in like.likes])[:-1])):
+            lk = likes[index[t]]
+            r_all.append(lk.residual(mean[t][:, None, :])[:, 0].ravel())
+            w_all.append((1.0 / (lk.sigma ** 2 / lk.n + var[t])).ravel())
+            x_all.append(np.concatenate([piece.real, piece.imag]))
+    x = np.concatenate(x_all)
+    if not np.all(np.isfinite(x)):
+        return 0.0, 0.0
+    return _share(np.concatenate(r_all), np.concatenate(w_all), x)
+
+
 def _statistics(damper, tests, likes, fits, z) -> dict:
     """The structure statistics of the baseline's residuals (module docstring)."""
     out = _signatures(tests, likes, [fits[t]["mu_mean"][0] for t in tests], [fits[t]["mu_var"][0] for t in tests], z)
@@ -727,6 +755,12 @@ def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes
     sig = _signatures(tests, likes, [mean[t] for t in tests], [var[t] for t in tests], z1)
     options = _composable(primary)
     screen = _screen(sig, config, options)
+    if joint and "base_rocking" in options:
+        # no shape of its own to test the residuals for: the share its linearisation explains
+        share, value = _rocking_signature(primary_fits, tests, likes, mean, var)
+        sig["rocking_linear"] = {"share": share, "rocking_rad_per_m": value}
+        screen["base_rocking"] = {"kept": share >= config.screen_share,
+                                  "why": f"share of the misfit explained by the linearised rocking {share:.2f}"}
     candidates = [e for e in options if screen[e]["kept"]] if misfit else []
     out = {"effect": None, "misfit": misfit, "bands": len(bands1), "global": glob1, "screen": screen,
            "statistics": sig, "ranking": []}

@@ -200,6 +200,13 @@ def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_
     r = diagnose(resolve_damper("damper1"), load_bench(default_bench_path()), seed=0, progress=False)
     assert r["verdict"] == "strand_slip", r["ranking"]
     assert r["statistics"]["amplitude_trend"]["dry"]["slope"] < 0  # EJ falls with amplitude
+    # the bench's cable is a log-normal Iwan law: the Iwan family beats Bouc-Wen by far (measured:
+    # 13 400 +- 390 nats), every cable state's posterior converged, nothing else to add
+    law = r["law"]["families"]
+    assert r["law"]["best"] == "iwan5" and law["bouc_wen"]["delta_elpd"] < -10 * law["bouc_wen"]["se_delta"]
+    assert r["after"]["converged"], r["after"]["not_converged"]
+    assert r["secondary"]["effect"] is None, r["secondary"]["ranking"]
     for row in r["per_test"]:
         assert row["delta_elpd"] > 4 * row["se"] and row["rms_z_after"] < row["rms_z_before"], row
-    assert r["after"]["coverage_90"] > r["before"]["coverage_90"]
+    # the target: >= 85 % of the recorded runs inside the 90 % predictive band (measured 0.917)
+    assert r["after"]["coverage_90"] >= 0.85
