@@ -473,7 +473,9 @@ def _solve(bal: _Balance, shape):
         gk = np.array([g(v) for v in grid])
         yk = np.array([bal.evaluate(v)[0] for v in grid])
         valid = (yk >= y_lo) & (yk <= y_hi)
-        down = valid[:-1] & valid[1:] & (gk[:-1] > 0) & (gk[1:] <= 0)  # + to -: a stable balance
+        # + to -: a stable balance. The cell's upper end may pass the top of the search: the wind curve
+        # is spent there (g < 0), and a balance just under the top would otherwise fall between points
+        down = valid[:-1] & (yk[1:] >= y_lo) & (gk[:-1] > 0) & (gk[1:] <= 0)
         found = down.any(axis=0)
         last = (_GRID - 2) - np.argmax(down[::-1], axis=0)               # the largest such cell
         a = np.take_along_axis(grid, last[None], 0)[0]
