@@ -275,7 +275,9 @@ def _cmd_map(args) -> int:
         key = "table"
     else:
         root = Path(args.runs)
-        names = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+        from .span import SPAN_STORE
+
+        names = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != SPAN_STORE) if root.is_dir() else []
         for name in names:  # every damper's map is a stage of the run store (map.json + map.nc)
             map_from_store(args.runs, name, args.params, seed=args.seed, include_oiled=args.include_oiled)
         docs = stored_maps(args.runs)
