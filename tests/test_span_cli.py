@@ -5,6 +5,7 @@ The stored cable posteriors are made in well under a second by :func:`tests.test
 """
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -100,7 +101,7 @@ def test_new_damper_with_the_cable_and_default_store(run, new_toml, capsys):
     doc = read_span(d)
     assert doc["damper"] == "newdamper" and doc["cable_damper"] == "damper1" and doc["ends"] == 2
     assert doc["n_dampers"] == 2 and "the damper1 cable" in out
-    assert [x.name for x, _ in stored_spans(store)] == [d.name]
+    assert d.name in [x.name for x, _ in stored_spans(store)]  # the module's other tests may add theirs
 
 
 def test_bare_span_with_or_without_none(tmp_path, monkeypatch, capsys):
@@ -173,7 +174,7 @@ def test_bad_input_is_one_line_and_exit_2(case, match, run, new_toml, tmp_path, 
     code, out, err = _span([*argv, "-o", str(tmp_path / "out"), *FAST], capsys)
     assert code == 2 and out == ""
     assert err.count("\n") == 1 and err.startswith("sbcal: error: ")
-    assert __import__("re").search(match, err), err
+    assert re.search(match, err), err
     assert not (tmp_path / "out").exists()
 
 
