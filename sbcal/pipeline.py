@@ -115,6 +115,7 @@ def changed(stored: dict | None, current: dict) -> list[str]:
     if not stored or "inputs" not in stored:
         return ["new"]
     old = stored["inputs"]
+    current = json.loads(json.dumps(current))  # as stored: tuples are lists in JSON
     return [k for k in current if old.get(k) != current[k]] + [k for k in old if k not in current]
 
 

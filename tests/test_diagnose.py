@@ -199,7 +199,7 @@ def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_
 
     r = diagnose(resolve_damper("damper1"), load_bench(default_bench_path()), seed=0, progress=False)
     assert r["verdict"] == "strand_slip", r["ranking"]
-    assert r["statistics"]["amplitude_trend"]["default"]["slope"] < 0  # EJ falls with amplitude
+    assert r["statistics"]["amplitude_trend"]["dry"]["slope"] < 0  # EJ falls with amplitude
     for row in r["per_test"]:
         assert row["delta_elpd"] > 4 * row["se"] and row["rms_z_after"] < row["rms_z_before"], row
     assert r["after"]["coverage_90"] > r["before"]["coverage_90"]

@@ -22,7 +22,7 @@ def bundled() -> pd.DataFrame:
 
 
 def small(bundled):
-    """Three bundled tests (2664 rows): two of them split into response branches, one steps its
+    """Three bundled tests (2664 rows): one with planted outlier runs, one that steps its
     amplitude. The workbook test uses this subset: writing all 15 984 rows with openpyxl takes ~2 s."""
     keep = (bundled.test == "0.1-0.1") | ((bundled.damper == "damper1") & (bundled.test == "2-1"))
     return bundled[keep].reset_index(drop=True)
@@ -51,7 +51,8 @@ def test_xlsx_and_parquet_give_the_csv_answer(tmp_path, bundled, capsys):
     ref = data_json(tmp_path, csv_path)
     assert data_json(tmp_path, xlsx) == ref
     assert data_json(tmp_path, pq) == ref
-    assert ref["damper1"]["0.1-0.1"]["branches"]["split"]   # the subset exercises the new keys
+    # the subset exercises the cleaning keys: planted outlier runs removed, the branch check run
+    assert ref["damper1"]["0.1-0.1"]["removed_runs"] and "split" in ref["damper1"]["0.1-0.1"]["branches"]
     pd.testing.assert_frame_equal(load_bench(xlsx).frame, load_bench(csv_path).frame)
     pd.testing.assert_frame_equal(load_bench(pq).frame, load_bench(csv_path).frame)
     capsys.readouterr()
