@@ -275,7 +275,9 @@ def _cmd_map(args) -> int:
         key = "table"
     else:
         root = Path(args.runs)
-        names = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+        from .span import SPAN_STORE
+
+        names = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != SPAN_STORE) if root.is_dir() else []
         for name in names:  # every damper's map is a stage of the run store (map.json + map.nc)
             map_from_store(args.runs, name, args.params, seed=args.seed, include_oiled=args.include_oiled)
         docs = stored_maps(args.runs)
@@ -685,6 +687,111 @@ def _cmd_predict(args) -> int:
     return 0
 
 
+# --- span --------------------------------------------------------------------------------------
+
+def _add_span(sub):
+    p = sub.add_parser("span", help="a damper on a conductor span: aeolian vibration, fatigue margin, placement",
+                       description="The energy balance method (docs/span.md): for each Strouhal frequency of the wind "
+                                   "band the antinode amplitude Y_max, the bending amplitude Y_b at 89 mm from the clamp "
+                                   "and the Poffenberger-Swart stress against the fatigue limit, with the damper's "
+                                   "amplitude-dependent impedance from a stored cable fit (median and 90 %% band over its "
+                                   "posterior) and without a damper. Stored as <runs>/span/<conductor>-<damper>-<state>/ "
+                                   "(span.csv, span.png, summary.json; placement.csv with --optimise).")
+    p.add_argument("--conductor", required=True, metavar="NAME|PATH",
+                   help="bundled conductor (drake, aster570) or a conductor TOML file (docs/span.md)")
+    p.add_argument("--damper", metavar="RUN|NAME|PATH|none",
+                   help="a stored cable fit (e.g. runs/damper1/cable-dry: its own damper and cable), or a damper "
+                        "(bundled name or TOML path) built with the cable of --cable RUN; none or omitted: the bare span")
+    p.add_argument("--cable", metavar="RUN", help="stored cable fit for a new damper given by --damper NAME|PATH")
+    p.add_argument("--position", type=float, nargs="+", metavar="M",
+                   help="damper distance from the suspension clamp [m] (several: several dampers at one end); "
+                        "required with a damper unless --optimise")
+    p.add_argument("--dampers", type=int, choices=(1, 2), default=1, metavar="N",
+                   help="span ends equipped: 1 (default) or 2 (the same dampers mirrored at both ends)")
+    p.add_argument("--wind", default="1:7", metavar="MIN:MAX", help="wind band [m/s] (default 1:7; at most 0:15)")
+    p.add_argument("--lines", type=int, default=60, metavar="N", help="frequencies in the band (default 60)")
+    p.add_argument("--draws", type=int, default=200, metavar="N", help="posterior draws used (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the draws (default 0)")
+    p.add_argument("--optimise", "--optimize", action="store_true",
+                   help="also find the position (one damper per equipped end) that maximises the 10 %% quantile of "
+                        "the worst-case margin over the band; plot the margin against position")
+    p.add_argument("--wave", choices=("travelling", "standing"), default="travelling",
+                   help="damper power: travelling-wave termination (default, exact for point dampers) or the "
+                        "standing-wave formula (light dampers)")
+    p.add_argument("-o", "--output", metavar="DIR",
+                   help="output directory (default <runs>/span/<label>/, <runs> the store holding the cable run, "
+                        "runs/ for a bare span)")
+    p.add_argument("--json", metavar="FILE", help="also write the summary JSON here")
+    p.add_argument("--quiet", action="store_true", help="print only the output directory (warnings still on stderr)")
+    return p
+
+
+def _parse_wind(text: str) -> tuple:
+    lo, sep, hi = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(lo), float(hi)
+    except ValueError:
+        raise InputError(f"--wind {text!r}: expected MIN:MAX in m/s, e.g. 1:7") from None
+
+
+def _margin_words(m: float) -> str:
+    return "under the limit" if m >= 1 else "ABOVE the limit"
+
+
+def _cmd_span(args) -> int:
+    from .span import span_study, store_span
+
+    wind = _parse_wind(args.wind)
+    if args.draws < 2:
+        raise InputError(f"--draws {args.draws}: must be >= 2")
+    try:
+        study = span_study(args.conductor, args.damper, cable=args.cable, position_m=args.position, ends=args.dampers,
+                           wind=wind, n_freq=args.lines, n_draws=args.draws, seed=args.seed, optimise=args.optimise,
+                           wave=args.wave)
+    except InputError as e:  # the library names its keywords; say them as options
+        text = str(e)
+        for key, opt in (("position_m: ", "--position: "), ("position: ", "--position: "), ("wind: ", "--wind: "),
+                         ("n_freq: ", "--lines: "), ("optimise: ", "--optimise: ")):
+            text = text.replace(key, opt, 1) if text.startswith(key) or f"; {key}" in text else text
+        raise InputError(text) from None
+    out = store_span(study, args.output, meta={"made_by": args.command_line}, json_path=args.json)
+    for w in study.warnings:
+        print(f"sbcal: warning: {w}", file=sys.stderr)
+    if not args.quiet:
+        r, c = study.result, study.result.conductor
+        ws = study.worst_stress_mpa()
+        if study.cable:
+            how = "its own cable" if study.cable_damper == study.damper else f"the {study.cable_damper} cable"
+            src = f"{study.damper} with {how} ({study.state}, {study.law}; {study.cable}), {r.n_draws} draws"
+        else:
+            src = "no damper"
+        print(f"{c.name}: {c.tension_pct_rts:.0f} % RTS, {c.span_length_m:g} m span; winds {r.wind_mps[0]:g}-"
+              f"{r.wind_mps[-1]:g} m/s ({r.freq_hz.size} lines, {r.freq_hz[0]:.3g}-{r.freq_hz[-1]:.3g} Hz); {src}")
+        print(f"  fatigue limit {r.limit_pa * 1e-6:.3g} MPa; margin = limit / worst stress over the band")
+        print(f"  no damper   : worst stress {ws['bare']:.3g} MPa, margin {r.margin_bare:.3g} "
+              f"({_margin_words(r.margin_bare)})")
+        if r.positions_m:
+            m = r.margin
+            q05, q50, q95 = np.quantile(m, [0.05, 0.5, 0.95])
+            where = ", ".join(f"{x:.3g}" for x in r.positions_m)
+            ends = "both ends" if r.ends == 2 else "one end"
+            print(f"  with damper : {r.n_dampers} damper{'s' if r.n_dampers > 1 else ''} at {where} m from the clamp "
+                  f"({ends}): worst stress "
+                  f"{ws['median']:.3g} [{ws['q05']:.3g}, {ws['q95']:.3g}] MPa, margin {q50:.3g} [{q05:.3g}, {q95:.3g}] "
+                  f"(median [5 %, 95 %]; {_margin_words(q05)} for 95 % of the draws)")
+        p = study.placement
+        if p is not None:
+            q = round(100 * p.quantile)
+            print(f"  placement   : best {p.best_position_m:.3g} m (margin q{q:02d} {p.best_margin:.3g}, "
+                  f"{p.positions_m.size} positions {p.positions_m[0]:.3g}-{p.positions_m[-1]:.3g} m): "
+                  f"one damper {'at each end' if p.ends == 2 else 'at one end'} "
+                  f"{'suffices' if p.suffices else 'does NOT suffice'}")
+    print(f"stored in {out}/" + (f"; wrote {args.json}" if args.json else ""))
+    return 0
+
+
 # One line per subcommand; each helper pair lives above, in the order of this table.
 _COMMANDS = {
     "simulate": (_add_simulate, _cmd_simulate),
@@ -697,6 +804,7 @@ _COMMANDS = {
     "diagnose": (_add_diagnose, _cmd_diagnose),
     "cable": (_add_cable, _cmd_cable),
     "predict": (_add_predict, _cmd_predict),
+    "span": (_add_span, _cmd_span),
 }
 
 

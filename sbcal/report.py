@@ -4,7 +4,8 @@ One ``index.html`` with its PNG figures beside it (``figures/``); opens from dis
 and no network. Per damper: data quality, then per test the fit (runs, mean, posterior-predictive
 band), dissipated power, the parameter table with convergence diagnostics, corner and trace plots;
 across tests the amplitude map. Missing pieces (a test not sampled yet) are shown as missing. Each prediction of a new damper from a calibrated cable
-(``predict-*/``, :mod:`sbcal.predict`) gets a section of its own.
+(``predict-*/``, :mod:`sbcal.predict`) gets a section of its own, and so does each span study
+(``span/*/``, :mod:`sbcal.span`: the stored figure and the margins to the fatigue limit).
 """
 
 from __future__ import annotations
@@ -299,6 +300,37 @@ def _predictions(damper_dir: Path, figs: Path) -> list:
     return out
 
 
+def _span_studies(runs: Path, figs: Path) -> list:
+    """The stored span studies (``<runs>/span/*/``, :mod:`sbcal.span`), ready for the page: key numbers
+    from ``summary.json`` and the stored figure copied beside the page (nothing is recomputed)."""
+    import shutil
+
+    from .span import stored_spans
+
+    out = []
+    for d, doc in stored_spans(runs):
+        fig = None
+        if (d / "span.png").is_file():
+            fig = f"span_{d.name}.png"
+            with atomic_path(figs / fig, ".png") as tmp:
+                shutil.copyfile(d / "span.png", tmp)
+        m, c, ws, p = doc["margin"], doc["conductor"], doc.get("worst_stress_mpa") or {}, doc.get("placement")
+        out.append({
+            "name": d.name, "figure": fig, "conductor": c, "damper": doc.get("damper", "none"), "cable": doc.get("cable", ""),
+            "cable_damper": doc.get("cable_damper", ""), "state": doc.get("state", ""), "law": doc.get("law", ""),
+            "positions": ", ".join(f"{x:.3g}" for x in doc.get("positions_m", [])), "ends": doc.get("ends", 1),
+            "n_draws": doc.get("n_draws"), "limit": eng(doc.get("limit_mpa")),
+            "margin": f"{eng(m['median'])} [{eng(m['q05'])}, {eng(m['q95'])}]" if doc.get("positions_m") else "—",
+            "margin_bare": eng(doc.get("margin_bare")),
+            "stress": f"{eng(ws.get('median'))} [{eng(ws.get('q05'))}, {eng(ws.get('q95'))}]" if doc.get("positions_m") else "—",
+            "stress_bare": eng(ws.get("bare")),
+            "safe": m.get("q05") is not None and m["q05"] >= 1 if doc.get("positions_m") else None,
+            "placement": None if not p else {"best": eng(p["best_position_m"]), "margin": eng(p["best_margin"]),
+                                             "quantile": round(100 * p["quantile"]), "suffices": p["suffices"]},
+            "warnings": doc.get("warnings", [])})
+    return out
+
+
 def _fmt(v, digits=4):
     return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
 
@@ -350,7 +382,9 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
     dampers = []
-    for dname in sorted(p.name for p in runs.iterdir() if p.is_dir()):
+    from .span import SPAN_STORE
+
+    for dname in sorted(p.name for p in runs.iterdir() if p.is_dir() and p.name != SPAN_STORE):
         say(f"report: {dname}")
         tests_dirs = sorted({p.parent.name for p in (runs / dname).glob(f"*/{paramset}")})
         data_path = runs / dname / "data.json"
@@ -435,7 +469,7 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                                    "versions": ", ".join(f"{k} {v}" for k, v in t.summary.get("versions", {}).items())})
     env = Environment(loader=PackageLoader("sbcal", "templates"), autoescape=select_autoescape(["html"]))
     page = env.get_template("report.html").render(
-        dampers=dampers, map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
+        dampers=dampers, spans=_span_studies(runs, figs), map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
         created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
         runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
         eng=eng,

@@ -35,8 +35,9 @@ NEW = Damper(name="newdamper", m1=2.2, J1=0.0095, a1=0.022, m2=1.5, J2=0.004, a2
              ac=0.0, L1=0.26, L2=0.17, mu=0.53, ej_static=113.0)
 
 
-def _store(root, *, converged=True, seed=0):
-    """A cable-law run of damper1 in ``root/runs/damper1/cable-dry``; returns its directory."""
+def _store(root, *, converged=True, seed=0, spread=0.02):
+    """A cable-law run of damper1 in ``root/runs/damper1/cable-dry``; returns its directory. The draws
+    scatter about TRUTH by ``spread`` in log (1.5 ``spread`` on the density exponent)."""
     d = resolve_damper("damper1")
     rng = np.random.default_rng(seed)
     model = CableModel(law_for(LAW))
@@ -52,7 +53,7 @@ def _store(root, *, converged=True, seed=0):
     for n in like.prior.names:
         base = TRUTH.get(n, getattr(d, n, None))
         z = rng.standard_normal((CHAINS, DRAWS))
-        draws[n] = base + 0.03 * z if n == "density_exponent" else base * np.exp(0.02 * z)
+        draws[n] = base + 1.5 * spread * z if n == "density_exponent" else base * np.exp(spread * z)
     ll = like.pointwise_log_likelihood({n: v.ravel() for n, v in draws.items()}).reshape(CHAINS, DRAWS, -1)
     one = {n: 1.0 for n in like.prior.names}
     many = {n: 1e3 for n in like.prior.names}
