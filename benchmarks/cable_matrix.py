@@ -53,7 +53,10 @@ def _wrap_deg(a):
 def run_law(damper, law: str, seed: int, tmp: Path) -> dict:
     p = dict(LAWS[law], delta_EJ=LAWS[law]["delta_EJ"] * damper.ej_static)
     slip = SlipLaw(law=law, params=tuple(p.items()))
-    config = BenchConfig(params={"EJ": 0.05 * damper.ej_static, "beta": 0.05}, effects={"strand_slip": slip}, runs=16)
+    # slip_tol 1e-8 on ln(chi): Newton stalls at ~3e-9 on this geometry's 4 Hz line (rounding), where
+    # the default 1e-9 refuses the recording; a 1e-8 relative curvature error is far below the noise
+    config = BenchConfig(params={"EJ": 0.05 * damper.ej_static, "beta": 0.05}, effects={"strand_slip": slip}, runs=16,
+                         slip_tol=1e-8)
     path = tmp / f"{law}.csv"
     write_bench(record(damper, config, TESTS, rng=np.random.default_rng([seed, list(LAWS).index(law)])), path)
     bench = load_bench(path)
@@ -79,9 +82,8 @@ def run_law(damper, law: str, seed: int, tmp: Path) -> dict:
         rows[t] = {"amplitude_mm_pp": float(lk.amplitude_mm_pp[0]),
                    "magnitude_pct": float(100 * np.sqrt(np.mean(np.log(np.abs(f) / np.abs(truth)) ** 2))),
                    "phase_deg": float(np.sqrt(np.mean(_wrap_deg(np.degrees(np.angle(f) - np.angle(truth))) ** 2)))}
-    conv = summary.get("convergence", {})
-    out.update(per_test=rows, converged=bool(conv.get("converged")), r_hat_max=conv.get("r_hat_max"),
-               ess_bulk_min=conv.get("ess_bulk_min"), wall_s=conv.get("wall_s"))
+    out.update(per_test=rows, converged=bool(summary["converged"]), r_hat_max=summary.get("r_hat_max"),
+               ess_bulk_min=summary.get("ess_bulk_min"), wall_s=summary.get("wall_s"))
     return out
 
 
@@ -98,7 +100,8 @@ def main(argv=None) -> int:
         for law in args.laws:
             r = run_law(damper, law, args.seed, Path(tmp))
             results.append(r)
-            print(f"data {law}: verdict {r['verdict']} ({r['verdict_law']} law), secondary {r['secondary']}; "
+            print(f"data {law}: verdict {r['verdict']} ({r['verdict_law']} law), secondary "
+                  f"{(r['secondary'] or {}).get('effect')}; "
                   f"diagnose {r['diagnose_s']:.0f} s")
             for family, f in r["families"].items():
                 print(f"  {family:9s} ELPD {f['elpd']:10.1f}, best family - this one {f['delta_elpd']:8.1f} +- "
