@@ -1,18 +1,37 @@
-"""Atomic file output: write to a temporary file beside the target, then rename.
-
-An interrupted command never leaves a half-written output file behind.
+"""File input and output: TOML inputs read with one-line errors; atomic output (write to a
+temporary file beside the target, then rename), so an interrupted command never leaves a
+half-written output file behind.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+import tomllib
 from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError
 
-__all__ = ["atomic_path", "write_json"]
+__all__ = ["read_toml", "atomic_path", "write_json"]
+
+
+def read_toml(path) -> dict:
+    """A TOML file as a dict; a missing or unreadable file, text that is not UTF-8 and malformed
+    TOML raise :class:`InputError` with one line naming the file."""
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror}") from None
+    try:
+        return tomllib.loads(text.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: not UTF-8 text (byte {e.start})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: invalid TOML: {e}") from None
 
 
 @contextmanager

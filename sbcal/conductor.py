@@ -8,12 +8,12 @@ name says otherwise; the self-damping law keeps the units its coefficients were 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from .damper import _number
+from ._io import read_toml
 from .errors import InputError
 
 __all__ = [
@@ -235,20 +235,7 @@ def load_conductor(path) -> Conductor:
         not a number, not finite, not positive; both or neither of ``tension_n`` and
         ``tension_pct_rts``; an unknown preset, wind curve or layer count.
     """
-    p = Path(path)
-    try:
-        text = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except OSError as e:
-        raise InputError(f"{p}: cannot read: {e.strerror}") from None
-    try:
-        doc = tomllib.loads(text.decode("utf-8"))
-    except UnicodeDecodeError as e:
-        raise InputError(f"{p}: not UTF-8 text (byte {e.start})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: invalid TOML: {e}") from None
-    return parse_conductor(doc, str(p))
+    return parse_conductor(read_toml(path), str(Path(path)))
 
 
 def bundled_conductors() -> list[str]:

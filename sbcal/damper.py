@@ -8,11 +8,11 @@ Units are SI throughout. The parameter names used here (``m1``, ``J1``, ``a1``, 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
+from ._io import read_toml
 from .errors import InputError
 
 __all__ = ["Damper", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
@@ -217,20 +217,7 @@ def load_damper(path) -> Damper:
         wrong type, a non-positive mass, length or EJ_static, a negative density or inertia, a non-finite value,
         an unknown key or a value outside [0, 100) in ``[tolerance]``.
     """
-    p = Path(path)
-    try:
-        text = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except OSError as e:
-        raise InputError(f"{p}: cannot read: {e.strerror}") from None
-    try:
-        doc = tomllib.loads(text.decode("utf-8"))
-    except UnicodeDecodeError as e:
-        raise InputError(f"{p}: not UTF-8 text (byte {e.start})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: invalid TOML: {e}") from None
-    return parse_damper(doc, str(p))
+    return parse_damper(read_toml(path), str(Path(path)))
 
 
 def bundled_dampers() -> list[str]:

@@ -9,7 +9,6 @@ coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .damper import Damper
+from ._io import read_toml
 from .errors import InputError
 from .fem import PARAMETER_NAMES
 
@@ -143,14 +143,8 @@ def _default_path(name="default.toml"):
 def _read(path, bundled="default.toml") -> tuple[dict, str]:
     if path is None:
         with resources.as_file(_default_path(bundled)) as p:
-            return tomllib.loads(p.read_text()), f"priors/{bundled}"
-    p = Path(path)
-    try:
-        return tomllib.loads(p.read_text(encoding="utf-8")), str(p)
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: invalid TOML: {e}") from None
+            return read_toml(p), f"priors/{bundled}"
+    return read_toml(path), str(Path(path))
 
 
 def parameter_sets(path=None) -> dict:
