@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from .damper import _number
 from ._io import read_toml
+from .damper import _number
 from .errors import InputError
 
 __all__ = [

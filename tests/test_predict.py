@@ -25,6 +25,8 @@ from sbcal.predict import (EXTRAPOLATION_MARGIN, _resonances, impedance_from_cab
 from sbcal.sampler import SampleResult
 from sbcal.stats import loo, read_netcdf
 
+from .test_damper import GOOD as BASE  # the damper file of the damper tests
+
 LAW = "iwan5"
 TRUTH = dict(EJ_min=4.4, beta_material=0.11, delta_EJ=42.0, chi_micro=3e-4, chi_macro=0.03, density_exponent=-1.0,
              macro_ratio=0.05)
@@ -86,27 +88,6 @@ def _reference(run, damper, freq, amp, **overrides):
 
 
 # --- the damper file's tolerances -----------------------------------------------------------------
-
-BASE = """
-name = "x"
-[clamp]
-mass_kg = 1.0
-inertia_kg_m2 = 0.001
-[mass1]
-mass_kg = 2.5
-inertia_kg_m2 = 0.01
-offset_m = 0.025
-[mass2]
-mass_kg = 2.0
-inertia_kg_m2 = 0.008
-offset_m = -0.015
-[cable]
-length1_m = 0.18
-length2_m = 0.14
-linear_density_kg_m = 0.5
-ej_static_nm2 = 100.0
-"""
-
 
 def test_tolerance_table_is_optional_and_checked(tmp_path):
     p = tmp_path / "d.toml"
