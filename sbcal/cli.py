@@ -15,6 +15,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError
+from .workers import one_blas_thread
 
 __all__ = ["main"]
 
@@ -101,9 +102,13 @@ def _bench_options(p, what="bench file"):
     p.add_argument("--sheet", metavar="NAME", help="read only this sheet of an .xlsx workbook (default: every sheet)")
 
 
-def _scale_options(p, workers_help="jobs in parallel local processes"):
+def _workers_option(p, what):
     p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
-                   help=f"{workers_help} (default: 2 or the cores there are)")
+                   help=f"{what} (default: 2 or the cores there are)")
+
+
+def _scale_options(p, workers_help="jobs in parallel local processes"):
+    _workers_option(p, workers_help)
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="send the jobs to a running Dask distributed cluster (e.g. tcp://host:8786; "
                         "pip install \"sbcal[dask]\")")
@@ -343,13 +348,17 @@ def _add_report(sub):
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
+    _workers_option(p, "processes drawing the figures")
     return p
 
 
 def _cmd_report(args) -> int:
     from .report import build_report
 
-    index = build_report(args.runs, args.output, paramset=args.params, command=args.command_line)
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    index = build_report(args.runs, args.output, paramset=args.params, command=args.command_line,
+                         workers=args.workers)
     print(f"wrote {index}")
     return 0
 
@@ -555,8 +564,7 @@ def _add_cable(sub):
     p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
-    p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
-                   help="processes per fit (default: 2 or the cores there are)")
+    _workers_option(p, "processes per fit")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -827,7 +835,8 @@ def main(argv=None) -> int:
         if args.command is None:
             parser.print_help()
             return 2
-        return _COMMANDS[args.command][1](args)
+        with one_blas_thread():  # every process of sbcal's: see sbcal/workers.py
+            return _COMMANDS[args.command][1](args)
     except InputError as e:
         print(f"sbcal: error: {e}", file=sys.stderr)
         return 2

@@ -49,6 +49,7 @@ from .progress import progress_bar
 from .runs import versions
 from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
+from .workers import one_blas_thread
 
 __all__ = ["DiagnoseConfig", "diagnose", "curves_frame"]
 
@@ -195,10 +196,11 @@ def _fit(job):
     key, like, ss, config = job
     joint = isinstance(like, JointLikelihood)
     start = None
-    if joint:  # a joint fit's box is wide and its mode narrow: a global least-squares start
-        s0, ss = ss.spawn(2)
-        start = _start_joint(like, np.random.default_rng(s0))
-    return key, sample(like, seed=ss, config=config.sampler(like.prior.ndim, joint), start=start)
+    with one_blas_thread():
+        if joint:  # a joint fit's box is wide and its mode narrow: a global least-squares start
+            s0, ss = ss.spawn(2)
+            start = _start_joint(like, np.random.default_rng(s0))
+        return key, sample(like, seed=ss, config=config.sampler(like.prior.ndim, joint), start=start)
 
 
 def _posterior(like, res) -> dict:
@@ -438,17 +440,56 @@ _UNITS = {"EJ_min": "N m^2", "delta_EJ": "N m^2", "chi_slip": "1/m", "chi_micro"
           "rocking_rad_per_m": "rad/m", "ej_exponent": "1", "EJ": "N m^2", "beta": "1", "a1": "m", "a2": "m"}
 
 
+def _scale_factor(estimates, se) -> float:
+    """The Birge ratio of estimates of one value: ``sqrt(chi2 / (K - 1))`` about their precision-weighted
+    mean (1 for one estimate). Above 1 they disagree beyond their errors; the Particle Data Group then
+    widens the combined error by it, as :func:`_combined` and :func:`_parameters` do."""
+    m, s = np.asarray(estimates, float), np.maximum(np.asarray(se, float), 1e-300)
+    if m.size < 2:
+        return 1.0
+    w = 1 / s ** 2
+    mean = np.sum(w * m) / np.sum(w)
+    return float(np.sqrt(np.sum(w * (m - mean) ** 2) / (m.size - 1)))
+
+
 def _combined(per_test: dict) -> dict:
-    """Precision-weighted combination of per-test posteriors (normal approximation)."""
+    """Precision-weighted combination of per-test (or per-cable-state) posteriors (normal
+    approximation), its error widened by their :func:`_scale_factor` where they disagree."""
     m = np.array([v["mean"] for v in per_test.values()])
     s = np.array([max(v["sd"], 1e-300) for v in per_test.values()])
     w = 1 / s ** 2
-    mean, sd = float(np.sum(w * m) / np.sum(w)), float(1 / np.sqrt(np.sum(w)))
-    return {"median": mean, "q05": mean - 1.645 * sd, "q95": mean + 1.645 * sd}
+    factor = _scale_factor(m, s)
+    mean, sd = float(np.sum(w * m) / np.sum(w)), float(max(1.0, factor) / np.sqrt(np.sum(w)))
+    return {"median": mean, "q05": mean - 1.645 * sd, "q95": mean + 1.645 * sd, "scale_factor": factor}
 
 
-def _parameters(effect: str, fits: dict, keys, baseline_names) -> dict:
-    """The extension's own parameters with 90 % intervals, and what they mean on the bench."""
+def _test_estimates(fit: dict, name: str, tests) -> dict:
+    """Each test's own estimate of a value a joint fit shares between them: one Gauss-Newton step
+    from the posterior median on that test's run means alone (the other parameters held), with its
+    noise-only standard error; ``{test: (estimate, se)}`` for the fit's ``tests`` (in its order)."""
+    like = fit["like"]
+    med = {n: np.atleast_1d(np.median(v)) for n, v in fit["params"].items()}
+    _, lo, hi = like.prior.box(name)
+    h = 1e-6 * (hi - lo)
+    h = h if med[name][0] + h <= hi else -h
+    base, moved = like.predict(med), like.predict(dict(med, **{name: med[name] + h}))
+    out = {}
+    for t, lk, a, b in zip(tests, like.likes, base, moved):
+        r = lk.residual(a)[:, 0]
+        jac = (r - lk.residual(b)[:, 0]) / h  # d(model)/d(value), phase wrapped by residual()
+        w = lk.n / lk.sigma ** 2  # 1 / variance of a run mean
+        info = float(np.sum(w * jac ** 2))
+        out[t] = (float(med[name][0] + np.sum(w * jac * r) / info), float(1 / np.sqrt(info)))
+    return out
+
+
+def _parameters(effect: str, fits: dict, keys, baseline_names, tests=None) -> dict:
+    """The extension's own parameters with 90 % intervals, and what they mean on the bench.
+
+    A value shared by several tests or cable states comes with its ``scale_factor``
+    (:func:`_scale_factor` of the tests' or states' own estimates, ``tests`` naming a joint fit's tests):
+    where it exceeds 1 the interval is widened by it about the combined value, so that a model that
+    fits some tests worse than others does not give a value more precisely than the tests agree on it."""
     own = [n for n in fits[keys[0]]["names"] if n not in baseline_names]
     out = {"effect": effect, "values": {}, "per_test": {}}
     if effect.split("+")[0] == "strand_slip":
@@ -467,9 +508,16 @@ def _parameters(effect: str, fits: dict, keys, baseline_names) -> dict:
         for key in keys:
             v = fits[key]["params"][n]
             per[key[1]] = {"mean": float(v.mean()), "sd": float(v.std()), **_quantiles(v)}
+            if tests is not None and isinstance(fits[key]["like"], JointLikelihood):
+                # one value for a cable state's tests: do the tests, each on its own, agree on it?
+                own_est = _test_estimates(fits[key], n, state_tests(tests)[key[1]])
+                factor = _scale_factor(*zip(*own_est.values()))
+                per[key[1]].update(sd=per[key[1]]["sd"] * max(1.0, factor), scale_factor=factor,
+                                   tests={t: e for t, (e, _) in own_est.items()})
         out["values"][n] = dict(_combined(per), unit=_UNITS.get(n, ""))
         for t, v in per.items():
-            out["per_test"].setdefault(t, {})[n] = {k: v[k] for k in ("median", "q05", "q95")}
+            out["per_test"].setdefault(t, {})[n] = {k: v[k] for k in ("median", "q05", "q95", "scale_factor", "tests")
+                                                    if k in v}
     out["words"] = _words(effect, out["values"])
     return out
 
@@ -477,8 +525,10 @@ def _parameters(effect: str, fits: dict, keys, baseline_names) -> dict:
 def _words(effect: str, v: dict, law: str = "") -> str:
     def iv(name, scale=1.0, fmt="{:.3g}"):
         d = v[name]
+        wide = (f" (widened {d['scale_factor']:.1f}x: the tests' own estimates disagree beyond their noise)"
+                if d.get("scale_factor", 1.0) > 1 else "")
         return (f"{fmt.format(d['median'] * scale)} [{fmt.format(d['q05'] * scale)}, "
-                f"{fmt.format(d['q95'] * scale)}]")
+                f"{fmt.format(d['q95'] * scale)}]{wide}")
     parts = []
     for e in effect.split("+"):
         if e == "sensor_delay":
@@ -783,7 +833,7 @@ def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes
     if choice in options:
         out["effect"] = choice
         base_names = tuple(n for n in next(iter(primary_fits.values()))["names"])
-        out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names)
+        out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names, tests)
         out["residuals"] = {t: {"z_before": zb.tolist(), "z_after": za.tolist()}
                             for t, zb, za in zip(tests, z1, checks[choice][0])}
     return out

@@ -35,6 +35,7 @@ from .bench import DEFAULT_Z_THRESHOLD, bench_summary, quality_table, rows_diges
 from .damper import Damper
 from .errors import InputError
 from .progress import progress_bar
+from .workers import one_blas_thread
 
 __all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "sample_inputs",
            "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run"]
@@ -154,10 +155,6 @@ def executor_for(scheduler: str | None = None):
         client.close()
 
 
-def _quiet_threads():
-    os.environ["OMP_NUM_THREADS"] = "1"
-
-
 def _map(executor, fn, jobs, label):
     """``fn`` over ``jobs`` (in ``executor`` or here), results in job order, a progress bar over jobs."""
     out = []
@@ -226,9 +223,10 @@ def _sample_job(job):
     damper, bench, test, store, settings, inputs, command = job
     from .calibrate import calibrate_test
 
-    return calibrate_test(damper, bench, test, paramset=settings.paramset, seed=settings.seed, out=store,
-                          config=replace(settings.sampler, workers=1), prior_path=settings.priors,
-                          z_threshold=settings.z_threshold, progress=False, command=command, inputs=inputs)
+    with one_blas_thread():
+        return calibrate_test(damper, bench, test, paramset=settings.paramset, seed=settings.seed, out=store,
+                              config=replace(settings.sampler, workers=1), prior_path=settings.priors,
+                              z_threshold=settings.z_threshold, progress=False, command=command, inputs=inputs)
 
 
 def sample_tests(bench, work, store, settings: Settings, *, executor=None, command: str = "", reuse: bool = True,
@@ -252,7 +250,7 @@ def sample_tests(bench, work, store, settings: Settings, *, executor=None, comma
             out[damper.name, t] = (None, f"redone ({_why(why)})" if reuse else "sampled")
     label = f"sampling {len(jobs)} test(s)" if progress and jobs else None
     if executor is None and settings.workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=settings.workers, initializer=_quiet_threads) as pool:
+        with ProcessPoolExecutor(max_workers=settings.workers) as pool:
             done = _map(pool, _sample_job, jobs, label)
     else:
         done = _map(executor, _sample_job, jobs, label)
@@ -343,6 +341,6 @@ def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None,
         doc, status = map_damper(store, damper.name, settings)
         say(f"{damper.name}: map: {status}" + ("" if doc is None else f"; preferred {doc['preferred']}"
                                                 + ("" if doc["converged"] else "; NOT CONVERGED")))
-    index = build_report(store, report_dir, paramset=settings.paramset, command=command)
+    index = build_report(store, report_dir, paramset=settings.paramset, command=command, workers=settings.workers)
     say(f"report: {index}")
     return index

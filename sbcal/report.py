@@ -11,6 +11,7 @@ across tests the amplitude map. Missing pieces (a test not sampled yet) are show
 from __future__ import annotations
 
 import datetime as _dt
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -347,8 +348,52 @@ def eng(v) -> str:
     return f"{v:.3g}"
 
 
+def _test_item(runs: Path, dname: str, t: str, paramset: str, figs: Path) -> _Test:
+    """One test's section: its stored run's figures and parameter table (or what is missing)."""
+    from .runs import read_run, run_dir
+
+    d = run_dir(runs, dname, t, paramset)
+    item = _Test(label=t, paramset=paramset)
+    try:
+        idata, s = read_run(d)
+    except InputError:
+        item.missing = "not sampled yet (no finished run)"
+        return item
+    item.summary = s
+    names = list(s["parameters"])
+    model_names = [n for n in names if not n.startswith("sigma_")]
+    stem = f"{dname}_{t}".replace("/", "_")
+    item.figures = {
+        "fit": _fit_figure(idata, figs / f"{stem}_fit.png", f"{dname} {t}: measured runs and posterior"),
+        "power": _power_figure(idata, figs / f"{stem}_power.png", f"{dname} {t}: power dissipated"),
+        "corner": _corner_figure(idata, model_names, figs / f"{stem}_corner.png"),
+        "trace": _trace_figure(idata, names, figs / f"{stem}_trace.png"),
+    }
+    for n, p in s["parameters"].items():
+        flag = not (p["r_hat"] <= POLICY["rhat_max"] and min(p["ess_bulk"], p.get("ess_tail", 0)) >= POLICY["ess_min"]) \
+            or not s.get("converged", False)
+        item.rows.append({"name": n, "median": _fmt(p["median"]), "q05": _fmt(p["q05"]), "q95": _fmt(p["q95"]),
+                          "r_hat": _fmt(p["r_hat"], 4), "ess": _fmt(p["ess_bulk"], 4), "tau": _fmt(p["tau"], 3),
+                          "flag": flag})
+    return item
+
+
+def _job(job):
+    """Run one drawing job ``(function, key, args)``; module-level so a process can run it."""
+    fn, key, args = job
+    return key, fn(*args)
+
+
+def _draw(jobs, workers: int):
+    """``(key, result)`` of every drawing job, in ``workers`` processes (here when 1)."""
+    if workers <= 1 or len(jobs) <= 1:
+        return [_job(j) for j in jobs]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(_job, jobs))
+
+
 def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", command: str = "",
-                 progress=None) -> Path:
+                 progress=None, workers: int = 1) -> Path:
     """Write ``<out_dir>/index.html`` (and ``figures/``) from a run store; returns its path.
 
     Renders what the stages stored and recomputes nothing: the cleaning summary (``data.json``), the
@@ -365,6 +410,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
         Command line, for provenance.
     progress : callable, optional
         Called with a short text per step.
+    workers : int
+        Processes drawing the figures (the page is the same for any number).
     """
     import json
 
@@ -372,7 +419,6 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
 
     from .amplitude import plot_map, stored_maps
     from .bench import THESIS_TESTS
-    from .runs import read_run, run_dir
 
     say = progress or (lambda text: None)
     runs = Path(runs_dir)
@@ -384,42 +430,24 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     dampers = []
     from .span import SPAN_STORE
 
-    for dname in sorted(p.name for p in runs.iterdir() if p.is_dir() and p.name != SPAN_STORE):
+    names = sorted(p.name for p in runs.iterdir() if p.is_dir() and p.name != SPAN_STORE)
+    test_dirs = {d: sorted({p.parent.name for p in (runs / d).glob(f"*/{paramset}")}) for d in names}
+    # the figures are drawn in worker processes (what takes the time); one job a test or a damper's extras
+    jobs = [(_test_item, ("test", d, t), (runs, d, t, paramset, figs)) for d in names for t in test_dirs[d]]
+    jobs += [(_diagnosis, ("diagnosis", d), (runs / d / "diagnose.json", figs)) for d in names]
+    jobs += [(_predictions, ("predictions", d), (runs / d, figs)) for d in names]
+    say(f"report: drawing the figures of {len(names)} damper(s)")
+    results = dict(_draw(jobs, workers))
+    for dname in names:
         say(f"report: {dname}")
-        tests_dirs = sorted({p.parent.name for p in (runs / dname).glob(f"*/{paramset}")})
+        tests_dirs = test_dirs[dname]
         data_path = runs / dname / "data.json"
         try:
             data = json.loads(data_path.read_text()) if data_path.is_file() else None
         except ValueError as e:
             raise InputError(f"{data_path}: not valid JSON ({e})") from None
         expected = list(data["tests"]) if data else []
-        tests = []
-        for t in tests_dirs:
-            d = run_dir(runs, dname, t, paramset)
-            item = _Test(label=t, paramset=paramset)
-            try:
-                idata, s = read_run(d)
-            except InputError:
-                item.missing = "not sampled yet (no finished run)"
-                tests.append(item)
-                continue
-            item.summary = s
-            names = list(s["parameters"])
-            model_names = [n for n in names if not n.startswith("sigma_")]
-            stem = f"{dname}_{t}".replace("/", "_")
-            item.figures = {
-                "fit": _fit_figure(idata, figs / f"{stem}_fit.png", f"{dname} {t}: measured runs and posterior"),
-                "power": _power_figure(idata, figs / f"{stem}_power.png", f"{dname} {t}: power dissipated"),
-                "corner": _corner_figure(idata, model_names, figs / f"{stem}_corner.png"),
-                "trace": _trace_figure(idata, names, figs / f"{stem}_trace.png"),
-            }
-            for n, p in s["parameters"].items():
-                flag = not (p["r_hat"] <= POLICY["rhat_max"] and min(p["ess_bulk"], p.get("ess_tail", 0)) >= POLICY["ess_min"]) \
-                    or not s.get("converged", False)
-                item.rows.append({"name": n, "median": _fmt(p["median"]), "q05": _fmt(p["q05"]), "q95": _fmt(p["q95"]),
-                                  "r_hat": _fmt(p["r_hat"], 4), "ess": _fmt(p["ess_bulk"], 4), "tau": _fmt(p["tau"], 3),
-                                  "flag": flag})
-            tests.append(item)
+        tests = [results.pop(("test", dname, t)) for t in tests_dirs]
         order = {t: i for i, t in enumerate(THESIS_TESTS)}
         have = {t.label for t in tests}
         for t in expected:
@@ -437,8 +465,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
             cv_fig = _cv_figure(data["quality"], figs / f"{dname}_cv.png")
         bench_note = "" if data else f"no cleaning stage stored ({data_path} is missing; 'sbcal run' writes it)"
         dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note,
-                        "diagnosis": _diagnosis(runs / dname / "diagnose.json", figs),
-                        "predictions": _predictions(runs / dname, figs)})
+                        "diagnosis": results.pop(("diagnosis", dname)),
+                        "predictions": results.pop(("predictions", dname))})
 
     say("report: amplitude map")
     docs = stored_maps(runs)

@@ -52,6 +52,7 @@ from scipy.optimize import differential_evolution, minimize
 
 from .progress import progress_bar
 from .stats import convergence
+from .workers import one_blas_thread
 
 __all__ = ["POLICY", "SamplerConfig", "SampleResult", "sample"]
 
@@ -417,7 +418,8 @@ def _advance(job):
     n, ndim = coords.shape
     move = _Ensembles(n // len(generators), generators, proposals, independence)
     sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
-    state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
+    with one_blas_thread():
+        state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
     return (sampler.get_chain(), sampler.get_log_prob(), state.coords, state.log_prob,
             [g.bit_generator.state for g in generators], sampler.backend.accepted.copy())
 

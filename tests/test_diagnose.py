@@ -15,8 +15,8 @@ from sbcal.bench import load_bench, remove_outlier_runs, write_bench
 from sbcal.calibrate import likelihood_for
 from sbcal.cli import main
 from sbcal.damper import resolve_damper
-from sbcal.diagnose import DiagnoseConfig, _bands, diagnose
-from sbcal.cable_fit import CableForward
+from sbcal.diagnose import DiagnoseConfig, _bands, _combined, _scale_factor, _test_estimates, diagnose
+from sbcal.cable_fit import CableForward, cable_likelihood
 from sbcal.extensions import EXTENSIONS, model_for
 from sbcal.fem import STANDARD_GRID_HZ, dynamic_stiffness
 from sbcal.likelihood import JointLikelihood
@@ -210,3 +210,44 @@ def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_
         assert row["delta_elpd"] > 4 * row["se"] and row["rms_z_after"] < row["rms_z_before"], row
     # the issue's target: >= 85 % of the recorded runs inside the 90 % predictive band (measured 0.917)
     assert r["after"]["coverage_90"] >= 0.85
+
+
+def test_scale_factor_is_one_on_average_for_consistent_estimates():
+    """R^2 of K consistent normal estimates is chi2_{K-1} / (K - 1): mean 1, sd sqrt(2/7) = 0.53 for K = 8;
+    over 2000 draws the mean of R^2 has sd 0.012, so 0.05 is four of them."""
+    rng = np.random.default_rng(5)
+    se = rng.uniform(0.5, 2.0, 8)
+    r2 = [_scale_factor(rng.normal(3.0, se), se) ** 2 for _ in range(2000)]
+    assert abs(np.mean(r2) - 1) < 0.05
+    assert _scale_factor([3.0], [1.0]) == 1.0
+    assert _scale_factor([1.0, 2.0], [0.1, 0.1]) == pytest.approx(np.sqrt(50))
+
+
+def test_disagreeing_states_widen_the_combined_interval():
+    agree = _combined({"dry": {"mean": 1.0, "sd": 0.1}, "oiled": {"mean": 1.05, "sd": 0.1}})
+    apart = _combined({"dry": {"mean": 1.0, "sd": 0.1}, "oiled": {"mean": 2.0, "sd": 0.1}})
+    sd = 0.1 / np.sqrt(2)
+    assert agree["q95"] - agree["median"] == pytest.approx(1.645 * sd)  # R = 0.35: never narrowed
+    assert apart["scale_factor"] == pytest.approx(np.sqrt(50))
+    assert apart["q95"] - apart["median"] == pytest.approx(1.645 * sd * np.sqrt(50))
+
+
+def test_each_tests_own_delay_of_a_joint_fit(damper, small_bench):
+    """The per-test estimates behind a joint fit's scale factor: the run means made the model's own
+    curves with the delay moved by +-20 us per test, one Gauss-Newton step finds each test's delay
+    (the phase is linear in it, so the step is exact to rounding) and the tests disagree."""
+    tests = ["0.5-0.5", "1-1"]
+    like = cable_likelihood(damper, small_bench, tests, "iwan5", effects=("sensor_delay",))
+    point = dict(like.prior.params(((like.prior.z_lower + like.prior.z_upper) / 2)[None]), delay_s=np.array([2e-4]))
+    shift = {"0.5-0.5": 2e-5, "1-1": -2e-5}
+    for t, lk, mu in zip(tests, like.likes, like.predict(point)):
+        lk.ybar = mu[:, 0] - np.array([0.0, 1.0])[:, None] * 2 * np.pi * lk.freq_hz * shift[t]
+    fit = {"like": like, "params": {k: np.repeat(v, 5) for k, v in point.items()}}
+    own = _test_estimates(fit, "delay_s", tests)
+    for t, lk in zip(tests, like.likes):
+        assert own[t][0] == pytest.approx(2e-4 + shift[t], rel=1e-6)
+        # the error of a slope of the phase alone (magnitudes do not move) over run means of n runs
+        omega = 2 * np.pi * lk.freq_hz
+        assert own[t][1] == pytest.approx(1 / np.sqrt(np.sum(lk.n * omega ** 2 / lk.sigma[1] ** 2)), rel=1e-4)
+    (e1, s1), (e2, s2) = own.values()  # two estimates: R = |difference| / its error
+    assert _scale_factor([e1, e2], [s1, s2]) == pytest.approx(4e-5 / np.hypot(s1, s2), rel=1e-6)

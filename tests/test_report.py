@@ -148,3 +148,17 @@ def test_report_shows_the_diagnosis(run_store, tmp_path):
     assert "Verdict: sensor_delay" in page and "ms delay" in page
     assert "figures/damper1_diagnosis.png" in p.imgs and (out / "figures/damper1_diagnosis.png").is_file()
     (run_store / "damper1" / "diagnose.json").unlink()  # the other report tests see the store as before
+
+
+def test_the_page_is_the_same_whatever_the_workers(run_store, tmp_path):
+    """Figures drawn in worker processes: the same page and the same figure files as drawn here."""
+    pages = {}
+    for n in (1, 2):
+        out = tmp_path / f"w{n}" / "rep"
+        assert main(["report", "--runs", str(run_store), "-o", str(out), "--workers", str(n)]) == 0
+        page = (out / "index.html").read_text()
+        page = page.replace(f"w{n}/rep --workers {n}", "")
+        pages[n] = (re.sub(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", "", page),
+                    sorted(p.name for p in (out / "figures").iterdir()))
+    assert pages[1] == pages[2]
+    assert main(["report", "--runs", str(run_store), "--workers", "0"]) == 2
