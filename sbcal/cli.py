@@ -547,7 +547,7 @@ _LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contai
 
 
 def _add_cable(sub):
-    from .hysteresis import FITTED_LAWS
+    from .hysteresis import FITTABLE_LAWS
 
     p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
                        description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
@@ -557,10 +557,11 @@ def _add_cable(sub):
     p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
                    help="bundled damper name or TOML path (default damper1)")
     _bench_options(p)
-    p.add_argument("--law", default="best", choices=list(FITTED_LAWS) + list(_LAW_ALIASES) + ["best"],
+    p.add_argument("--law", default="best", choices=list(FITTABLE_LAWS) + list(_LAW_ALIASES) + ["best"],
                    help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
-                        "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), or best (both, "
-                        "the better by PSIS-LOO; default)")
+                        "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), iwan_tail (Iwan "
+                        "whose density ends in a power-law tail: on request only, see docs/cable.md), or best "
+                        "(bouc_wen and iwan5, the better by PSIS-LOO; default)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")

@@ -65,9 +65,11 @@ __all__ = [
     "BoucWenLaw",
     "IwanLaw",
     "Iwan5Law",
+    "IwanTailLaw",
     "LognormalIwanLaw",
     "LAWS",
     "FITTED_LAWS",
+    "FITTABLE_LAWS",
     "law_for",
     "jenkins_rigidity",
 ]
@@ -624,6 +626,10 @@ def _slip_integral(x1, x2, p):
     return primitive(x2) - primitive(x1) + 1j * im
 
 
+_CHI_MICRO = LawParameter("chi_micro", "1/m", "curvature amplitude below which every wire sticks (the lower cut-off)")
+_DENSITY_EXPONENT = LawParameter("density_exponent", "1", "c > -5/2: slip-curvature density ~ phi^c above chi_micro")
+
+
 @dataclass(frozen=True)
 class Iwan5Law(HysteresisLaw):
     """Five-parameter Iwan law: a power-law slip-curvature density between two cut-offs, plus a point mass.
@@ -652,9 +658,9 @@ class Iwan5Law(HysteresisLaw):
     name: ClassVar[str] = "iwan5"
     parameters: ClassVar[tuple] = (
         _DELTA_EJ,
-        LawParameter("chi_micro", "1/m", "curvature amplitude below which every wire sticks (< chi_macro)"),
+        _CHI_MICRO,
         LawParameter("chi_macro", "1/m", "curvature amplitude at which every wire slips (macro-slip)"),
-        LawParameter("density_exponent", "1", "c > -5/2: slip-curvature density ~ phi^c between the cut-offs"),
+        _DENSITY_EXPONENT,
         LawParameter("macro_ratio", "1", ">= 0: wires slipping only at chi_macro, relative to the spread part"),
     )
 
@@ -694,6 +700,93 @@ class Iwan5Law(HysteresisLaw):
         u = np.clip(chi, chi_micro, chi_macro)
         cont = r * (_power_integral(chi_micro, u, p + 1.0) + chi * _power_integral(u, chi_macro, p))
         return cont + (delta_EJ - k_cont) * np.minimum(chi, chi_macro)
+
+    def steady_loop(self, chi_a, theta, **params):
+        """Masing's rule on :meth:`backbone` (exact for parallel Jenkins elements)."""
+        return _masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
+
+
+# --- Iwan with a power-law tail beyond the macro-slip curvature -----------------------------------
+
+@dataclass(frozen=True)
+class IwanTailLaw(HysteresisLaw):
+    """Iwan law whose slip-curvature density is a broken power law: ``phi^c`` between the cut-offs,
+    ``phi^c_t`` beyond ``chi_tail``.
+
+    Jenkins elements with slip curvatures of density ``R phi^c`` on ``(chi_micro, chi_tail)`` and
+    ``R chi_tail^c (phi / chi_tail)^c_t`` on ``(chi_tail, inf)``, ``c = density_exponent > -5/2``,
+    ``-5/2 < c_t = tail_exponent < -1`` (the tail holds a finite rigidity; its wires stop slipping
+    one after the other, not all at once), ``delta_EJ = R (int_micro^macro phi^c dphi +
+    chi_tail^(c+1) / (-c_t - 1))``. Where :class:`Iwan5Law` ends the spread with a sharp cut-off
+    (and a point mass), this law lets the density fall smoothly in ``ln phi`` — as a bell-shaped
+    density's upper side does — so the slipping rigidity approaches ``EJ_min`` as ``chi_a^(c_t+1)``
+    instead of saturating Coulomb-like. ``c_t -> -inf`` is :class:`Iwan5Law` without its point mass.
+
+    Describing function, per segment a power law (``x = phi / chi_a``; :func:`_slip_integral`)::
+
+        EJ_slip* = delta_EJ - R (chi_a^(c+1) int_x_lo^min(x_hi, 1) x^c (1 - J(x)) dx
+                                 + [chi_a > chi_tail] chi_tail^(c-c_t) chi_a^(c_t+1)
+                                   int_x_hi^1 x^c_t (1 - J(x)) dx)
+
+    in closed form (powers, incomplete beta functions). A Masing law: the loop follows from :meth:`backbone`.
+    """
+
+    name: ClassVar[str] = "iwan_tail"
+    parameters: ClassVar[tuple] = (
+        _DELTA_EJ,
+        _CHI_MICRO,
+        LawParameter("chi_tail", "1/m", "curvature where the slip-curvature density's power changes to the tail's"),
+        _DENSITY_EXPONENT,
+        LawParameter("tail_exponent", "1", "-5/2 < c_t < -1: density ~ phi^c_t beyond chi_tail"),
+    )
+
+    def _domain(self, name, v):
+        if name == "density_exponent":
+            return v > -2.5
+        if name == "tail_exponent":
+            return (v > -2.5) & (v < -1.0)
+        return v > 0
+
+    def valid(self, **params) -> np.ndarray:
+        """As :meth:`HysteresisLaw.valid`, and ``chi_micro < chi_tail``."""
+        ok = super().valid(**params)
+        with np.errstate(invalid="ignore"):
+            return ok & (np.asarray(params["chi_micro"], dtype=float) < np.asarray(params["chi_tail"], dtype=float))
+
+    @staticmethod
+    def _scale(delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent):
+        """``R chi_tail^(c+1)``: the density's scale in units of ``chi_tail``."""
+        inner = _power_integral(chi_micro / chi_tail, np.ones_like(chi_tail), density_exponent + 1.0)
+        return delta_EJ / (inner + 1.0 / (-tail_exponent - 1.0))
+
+    def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent):
+        shape = np.broadcast_shapes(np.shape(chi), np.shape(delta_EJ), np.shape(chi_micro), np.shape(chi_tail),
+                                    np.shape(density_exponent), np.shape(tail_exponent))
+        chi, dej, lo, hi, c, ct = (np.broadcast_to(np.asarray(v, dtype=float), shape).astype(float) for v in
+                                   (chi, delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent))
+        r = self._scale(dej, lo, hi, c, ct)
+        out = np.array(dej, dtype=complex)  # stuck below chi_micro
+        m = chi > lo
+        if m.any():
+            a, x_lo, x_hi = chi[m] / hi[m], lo[m] / chi[m], hi[m] / chi[m]  # a: amplitude in units of chi_tail
+            slip = np.exp((c[m] + 1.0) * np.log(a)) * _slip_integral(x_lo, np.minimum(x_hi, 1.0), c[m] + 1.0)
+            beyond = a > 1.0
+            if beyond.any():
+                pt = ct[m][beyond] + 1.0
+                slip[beyond] += np.exp(pt * np.log(a[beyond])) * _slip_integral(x_hi[beyond], np.ones(pt.shape), pt)
+            out[m] = dej[m] - r[m] * slip
+        return out
+
+    def backbone(self, chi, *, delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent):
+        """Virgin loading curve ``M_b(chi) = int rho(phi) min(chi, phi) dphi`` [N m], chi >= 0."""
+        p, pt = density_exponent + 1.0, tail_exponent + 1.0
+        r = self._scale(delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent) / chi_tail ** p  # R
+        u = np.clip(chi, chi_micro, chi_tail)
+        inner = r * (_power_integral(chi_micro, u, p + 1.0) + chi * _power_integral(u, chi_tail, p))
+        v = np.maximum(chi, chi_tail)
+        rt = r * chi_tail ** (density_exponent - tail_exponent)
+        tail = rt * (_power_integral(chi_tail, v, pt + 1.0) + chi * v ** pt / (-pt))
+        return inner + tail
 
     def steady_loop(self, chi_a, theta, **params):
         """Masing's rule on :meth:`backbone` (exact for parallel Jenkins elements)."""
@@ -783,12 +876,18 @@ class LognormalIwanLaw(HysteresisLaw):
         return _masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
 
 
-LAWS = {law.name: law for law in (BoucWenLaw, Iwan5Law, DahlLaw, IwanLaw, LognormalIwanLaw)}
+LAWS = {law.name: law for law in (BoucWenLaw, Iwan5Law, IwanTailLaw, DahlLaw, IwanLaw, LognormalIwanLaw)}
 """Law classes by name."""
 
 FITTED_LAWS = ("bouc_wen", "iwan5")
-"""The families a calibration fits (two shapes: a smooth Dahl-like knee, a spread of slipping
-wires); ``dahl`` and ``iwan`` are their special cases, ``lognormal_iwan`` the virtual bench's own."""
+"""The families a calibration fits and compares by default (two shapes: a smooth Dahl-like knee, a
+spread of slipping wires); ``dahl`` and ``iwan`` are their special cases, ``lognormal_iwan`` the
+virtual bench's own."""
+
+FITTABLE_LAWS = FITTED_LAWS + ("iwan_tail",)
+"""Every family with prior boxes (``priors/cable.toml``): ``iwan_tail`` is fitted on request
+(``sbcal cable --law iwan_tail``) — on a cable state of one test its posterior does not mix
+(``docs/cable.md``, "Iwan with a power-law tail")."""
 
 
 def law_for(name: str) -> HysteresisLaw:

@@ -86,10 +86,11 @@ _F_REF_STIFFNESS_HZ = 10.0  # frequency_dependent_stiffness: EJ(10 Hz) = EJ
 # --- effect descriptions -----------------------------------------------------------------------
 
 _LAW_SCALE = {"dahl": "chi_dahl", "iwan": "chi_macro", "lognormal_iwan": "chi_median", "bouc_wen": "chi_slip",
-              "iwan5": "chi_macro"}
+              "iwan5": "chi_macro", "iwan_tail": "chi_tail"}
 _LAW_DEFAULTS = {"dahl": {}, "iwan": {"micro_exponent": -0.5, "macro_ratio": 0.0},
                  "lognormal_iwan": {"log_spread": 1.5}, "bouc_wen": {"sharpness": 1.0},
-                 "iwan5": {"chi_micro": 1e-6, "density_exponent": -0.5, "macro_ratio": 0.0}}
+                 "iwan5": {"chi_micro": 1e-6, "density_exponent": -0.5, "macro_ratio": 0.0},
+                 "iwan_tail": {"chi_micro": 1e-6, "density_exponent": -0.5, "tail_exponent": -1.5}}
 BENCH_ELEMENTS = 12
 """Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.cable.DEFAULT_N_ELEMENTS`)."""
 
@@ -106,15 +107,15 @@ class SlipLaw:
     Attributes
     ----------
     law : str
-        ``"lognormal_iwan"`` (the bench's own law, fitted by neither family), a fitted family
-        (``"bouc_wen"``, ``"iwan5"``) or one of their special cases (``"dahl"``, ``"iwan"``).
+        ``"lognormal_iwan"`` (the bench's own law, fitted by no family), a fitted family
+        (``"bouc_wen"``, ``"iwan5"``, ``"iwan_tail"``) or a special case (``"dahl"``, ``"iwan"``).
     params : tuple of (str, float)
         The law's parameters (:attr:`sbcal.hysteresis.HysteresisLaw.parameters`); ``delta_EJ``
         defaults to ``ej_static - EJ`` (the stuck cable is the damper's static rigidity), and
         ``micro_exponent = -0.5``, ``macro_ratio = 0`` (iwan), ``log_spread = 1.5`` (lognormal_iwan),
         ``sharpness = 1`` (bouc_wen), ``chi_micro = 1e-6``, ``density_exponent = -0.5``, ``macro_ratio = 0``
-        (iwan5). The law's curvature scale (``chi_dahl``, ``chi_macro``, ``chi_median``, ``chi_slip``)
-        is required.
+        (iwan5; iwan_tail: ``tail_exponent = -1.5`` for the point mass). The law's curvature scale
+        (``chi_dahl``, ``chi_macro``, ``chi_median``, ``chi_slip``, ``chi_tail``) is required.
     elements : int
         Hermite elements per arm (default :data:`BENCH_ELEMENTS`).
     """

@@ -10,7 +10,7 @@ from scipy.integrate import quad
 from sbcal.damper import resolve_damper
 from sbcal.errors import InputError
 from sbcal.hysteresis import (
-    FITTED_LAWS, LAWS, BoucWenLaw, DahlLaw, Iwan5Law, IwanLaw, LognormalIwanLaw, jenkins_rigidity, law_for,
+    FITTABLE_LAWS, FITTED_LAWS, LAWS, BoucWenLaw, DahlLaw, Iwan5Law, IwanLaw, IwanTailLaw, LognormalIwanLaw, jenkins_rigidity, law_for,
 )
 from sbcal.priors import extension_prior
 
@@ -20,8 +20,9 @@ LOGN = dict(delta_EJ=50.0, chi_median=3e-3, log_spread=1.5)
 BOUC = dict(delta_EJ=50.0, chi_slip=2e-3, sharpness=0.6)
 # c = -1: a log-uniform density, where the closed form interpolates across its removable 1/p
 IWAN5 = dict(delta_EJ=50.0, chi_micro=2e-5, chi_macro=5e-3, density_exponent=-1.0, macro_ratio=0.3)
+TAIL = dict(delta_EJ=50.0, chi_micro=2e-5, chi_tail=5e-3, density_exponent=-1.3, tail_exponent=-1.8)
 CASES = [(DahlLaw(), DAHL, 2e-3), (IwanLaw(), IWAN, 5e-3), (LognormalIwanLaw(), LOGN, 3e-3),
-         (BoucWenLaw(), BOUC, 2e-3), (Iwan5Law(), IWAN5, 5e-3)]
+         (BoucWenLaw(), BOUC, 2e-3), (Iwan5Law(), IWAN5, 5e-3), (IwanTailLaw(), TAIL, 5e-3)]
 
 
 def _first_harmonic(law, params, chi_a, n=20000):
@@ -142,7 +143,7 @@ def test_laws_are_picklable_and_describe_their_parameters():
         assert pickle.loads(pickle.dumps(law)) == law
         assert law.parameter_names[0] == "delta_EJ"
         assert all(p.unit and p.meaning for p in law.parameters)
-    assert set(FITTED_LAWS) == {"bouc_wen", "iwan5"}
+    assert set(FITTED_LAWS) == {"bouc_wen", "iwan5"} and set(FITTABLE_LAWS) == set(FITTED_LAWS) | {"iwan_tail"}
     # no parameter name means two things across the laws
     meaning = {}
     for cls in LAWS.values():
@@ -299,7 +300,7 @@ def test_fitted_families_domains():
     np.testing.assert_allclose(s[1], BoucWenLaw().slip_rigidity([1e-4, 1e-3, 1e-2], **dict(BOUC, sharpness=2.0)))
 
 
-@pytest.mark.parametrize("name", FITTED_LAWS)
+@pytest.mark.parametrize("name", FITTABLE_LAWS)
 def test_prior_boxes_of_the_fitted_families(name):
     from importlib import resources
     law = law_for(name)
@@ -309,3 +310,29 @@ def test_prior_boxes_of_the_fitted_families(name):
     centre = np.where(prior.log_scale, np.sqrt(np.abs(prior.lower * prior.upper)), 0.5 * (prior.lower + prior.upper))
     box = dict(zip(prior.names, centre))
     assert law.valid(**{k: box[k] for k in law.parameter_names})
+
+
+def test_iwan_tail_is_its_density_summed_over_jenkins_elements():
+    """Independent of the closed form and of the loop: the describing function as the density's
+    sum of Jenkins elements, a trapezoid in ln(phi) over 26 e-folds (its error ~1e-6 here)."""
+    u = np.linspace(np.log(TAIL["chi_micro"]), np.log(TAIL["chi_tail"]) + 26.0, 400001)
+    phi = np.exp(u)
+    c, ct, hi = TAIL["density_exponent"], TAIL["tail_exponent"], TAIL["chi_tail"]
+    w = np.where(phi < hi, phi ** c, hi ** c * (phi / hi) ** ct) * phi  # density per unit ln(phi)
+    for chi_a in (1e-4, 5e-3, 2e-2, 1.0):
+        quad = TAIL["delta_EJ"] * np.trapezoid(w * jenkins_rigidity(phi / chi_a), u) / np.trapezoid(w, u)
+        got = IwanTailLaw().slip_rigidity(chi_a, **TAIL)
+        assert abs(got - quad) < 1e-5 * TAIL["delta_EJ"], chi_a
+
+
+def test_a_steep_tail_is_iwan5_without_its_point_mass():
+    chi = np.logspace(-5, 0, 11)
+    steep = IwanTailLaw().slip_rigidity(chi, **dict(TAIL, tail_exponent=-2.49))
+    sharp = Iwan5Law().slip_rigidity(chi, delta_EJ=50.0, chi_micro=2e-5, chi_macro=5e-3, density_exponent=-1.3,
+                                     macro_ratio=0.0)
+    below = chi < TAIL["chi_tail"]
+    # not equal: the tail holds 1 / 1.49 of ln-decade's worth of wires beyond chi_macro; both stick alike below
+    # the micro-slip onset and both lose all but the tail's rigidity far beyond chi_macro
+    assert np.all(np.abs(steep - sharp)[below] < 0.2 * TAIL["delta_EJ"])
+    assert abs(steep[-1]) < 0.05 * TAIL["delta_EJ"] and abs(sharp[-1]) < 0.05 * TAIL["delta_EJ"]
+    assert np.isnan(IwanTailLaw().slip_rigidity(1e-3, **dict(TAIL, tail_exponent=-0.9)))
