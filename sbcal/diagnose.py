@@ -479,7 +479,8 @@ def _test_estimates(fit: dict, name: str, tests) -> dict:
         jac = (r - lk.residual(b)[:, 0]) / h  # d(model)/d(value), phase wrapped by residual()
         w = lk.n / lk.sigma ** 2  # 1 / variance of a run mean
         info = float(np.sum(w * jac ** 2))
-        out[t] = (float(med[name][0] + np.sum(w * jac * r) / info), float(1 / np.sqrt(info)))
+        if info > 0:  # a test the value does not move says nothing about it
+            out[t] = (float(med[name][0] + np.sum(w * jac * r) / info), float(1 / np.sqrt(info)))
     return out
 
 
@@ -487,9 +488,10 @@ def _parameters(effect: str, fits: dict, keys, baseline_names, tests=None) -> di
     """The extension's own parameters with 90 % intervals, and what they mean on the bench.
 
     A value shared by several tests or cable states comes with its ``scale_factor``
-    (:func:`_scale_factor` of the tests' or states' own estimates, ``tests`` naming a joint fit's tests):
-    where it exceeds 1 the interval is widened by it about the combined value, so that a model that
-    fits some tests worse than others does not give a value more precisely than the tests agree on it."""
+    (:func:`_scale_factor` of the tests' or states' own estimates, ``tests`` naming a joint fit's tests;
+    in ``values`` the largest applied): where it exceeds 1 the interval is widened by it about the
+    combined value, so that a model that fits some tests worse than others does not give a value more
+    precisely than the tests agree on it."""
     own = [n for n in fits[keys[0]]["names"] if n not in baseline_names]
     out = {"effect": effect, "values": {}, "per_test": {}}
     if effect.split("+")[0] == "strand_slip":
@@ -514,7 +516,10 @@ def _parameters(effect: str, fits: dict, keys, baseline_names, tests=None) -> di
                 factor = _scale_factor(*zip(*own_est.values()))
                 per[key[1]].update(sd=per[key[1]]["sd"] * max(1.0, factor), scale_factor=factor,
                                    tests={t: e for t, (e, _) in own_est.items()})
-        out["values"][n] = dict(_combined(per), unit=_UNITS.get(n, ""))
+        combined = _combined(per)
+        # the largest factor applied: between the states', or within a state between its tests
+        combined["scale_factor"] = max([combined["scale_factor"]] + [v.get("scale_factor", 1.0) for v in per.values()])
+        out["values"][n] = dict(combined, unit=_UNITS.get(n, ""))
         for t, v in per.items():
             out["per_test"].setdefault(t, {})[n] = {k: v[k] for k in ("median", "q05", "q95", "scale_factor", "tests")
                                                     if k in v}

@@ -15,7 +15,7 @@ from sbcal.bench import load_bench, remove_outlier_runs, write_bench
 from sbcal.calibrate import likelihood_for
 from sbcal.cli import main
 from sbcal.damper import resolve_damper
-from sbcal.diagnose import DiagnoseConfig, _bands, _combined, _scale_factor, _test_estimates, diagnose
+from sbcal.diagnose import DiagnoseConfig, _bands, _combined, _parameters, _scale_factor, _test_estimates, diagnose
 from sbcal.cable_fit import CableForward, cable_likelihood
 from sbcal.extensions import EXTENSIONS, model_for
 from sbcal.fem import STANDARD_GRID_HZ, dynamic_stiffness
@@ -242,7 +242,7 @@ def test_each_tests_own_delay_of_a_joint_fit(damper, small_bench):
     shift = {"0.5-0.5": 2e-5, "1-1": -2e-5}
     for t, lk, mu in zip(tests, like.likes, like.predict(point)):
         lk.ybar = mu[:, 0] - np.array([0.0, 1.0])[:, None] * 2 * np.pi * lk.freq_hz * shift[t]
-    fit = {"like": like, "params": {k: np.repeat(v, 5) for k, v in point.items()}}
+    fit = {"like": like, "params": {k: np.repeat(v, 4000) for k, v in point.items()}}
     own = _test_estimates(fit, "delay_s", tests)
     for t, lk in zip(tests, like.likes):
         assert own[t][0] == pytest.approx(2e-4 + shift[t], rel=1e-6)
@@ -250,4 +250,15 @@ def test_each_tests_own_delay_of_a_joint_fit(damper, small_bench):
         omega = 2 * np.pi * lk.freq_hz
         assert own[t][1] == pytest.approx(1 / np.sqrt(np.sum(lk.n * omega ** 2 / lk.sigma[1] ** 2)), rel=1e-4)
     (e1, s1), (e2, s2) = own.values()  # two estimates: R = |difference| / its error
-    assert _scale_factor([e1, e2], [s1, s2]) == pytest.approx(4e-5 / np.hypot(s1, s2), rel=1e-6)
+    factor = _scale_factor([e1, e2], [s1, s2])
+    assert factor == pytest.approx(4e-5 / np.hypot(s1, s2), rel=1e-6)
+    # the joint posterior's interval of the delay (draws 1 us about 0.2 ms) is widened by it, and says so
+    draws = dict(fit["params"], delay_s=2e-4 + 1e-6 * np.random.default_rng(0).standard_normal(4000))
+    key = ("strand_slip+sensor_delay", "dry")
+    base = tuple(n for n in like.prior.names if n != "delay_s")
+    out = _parameters("sensor_delay", {key: {"like": like, "params": draws, "names": like.prior.names}}, [key], base,
+                      tests)
+    v = out["values"]["delay_s"]
+    assert v["scale_factor"] == pytest.approx(factor)
+    assert v["q95"] - v["median"] == pytest.approx(1.645 * factor * draws["delay_s"].std(), rel=1e-6)
+    assert f"widened {factor:.1f}x" in out["words"]
