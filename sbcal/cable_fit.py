@@ -39,7 +39,7 @@ from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
 
-__all__ = ["SECONDARY", "cable_state", "state_tests", "CableForward", "CableFit", "cable_likelihood", "cable_start",
+__all__ = ["SECONDARY", "cable_state", "state_tests", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
            "fit_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
@@ -61,6 +61,13 @@ def state_tests(tests) -> dict:
     for t in tests:
         out.setdefault(cable_state(t), []).append(t)
     return out
+
+
+def compared_laws(laws, tests) -> tuple:
+    """The families of ``laws`` a comparison over ``tests`` uses: those with their ``min_tests`` in every
+    cable state (a family is compared on all of a damper's states or on none)."""
+    fewest = min(len(m) for m in state_tests(tests).values())
+    return tuple(law for law in laws if law_for(law).min_tests <= fewest)
 
 
 def cable_config(ndim: int, *, workers: int = 2, max_steps: int = 8000, max_draws: int = 250) -> SamplerConfig:
@@ -394,12 +401,14 @@ def read_cable(directory) -> tuple[dict, dict]:
     return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
 
 
-def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=FITTED_LAWS, seed=0, prior_path=None,
+def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=None, seed=0, prior_path=None,
                      workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
-    """Every cable state of a damper under every family; ``(fits, comparison)`` with
-    ``fits[law][state]`` and the comparison of :func:`compare_families`."""
+    """Every cable state of a damper under every family (default: :func:`compared_laws` of
+    :data:`FITTED_LAWS`); ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of
+    :func:`compare_families`."""
     tests = list(bench.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
+    laws = compared_laws(FITTED_LAWS, tests) if laws is None else tuple(laws)
     root = np.random.SeedSequence(seed)
     fits = {}
     for law, ss in zip(laws, root.spawn(len(laws))):

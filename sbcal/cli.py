@@ -547,7 +547,7 @@ _LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contai
 
 
 def _add_cable(sub):
-    from .hysteresis import FITTABLE_LAWS
+    from .hysteresis import FITTED_LAWS
 
     p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
                        description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
@@ -557,11 +557,11 @@ def _add_cable(sub):
     p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
                    help="bundled damper name or TOML path (default damper1)")
     _bench_options(p)
-    p.add_argument("--law", default="best", choices=list(FITTABLE_LAWS) + list(_LAW_ALIASES) + ["best"],
+    p.add_argument("--law", default="best", choices=list(FITTED_LAWS) + list(_LAW_ALIASES) + ["best"],
                    help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
                         "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), iwan_tail (Iwan "
-                        "whose density ends in a power-law tail: on request only, see docs/cable.md), or best "
-                        "(bouc_wen and iwan5, the better by PSIS-LOO; default)")
+                        "whose density ends in a power-law tail; compared only where every cable state has two tests "
+                        "or more), or best (every family that can be compared, the best by PSIS-LOO; default)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
@@ -576,7 +576,6 @@ def _cmd_cable(args) -> int:
 
     from .cable_fit import fit_damper_cable, store_cable
     from .damper import resolve_damper
-    from .hysteresis import FITTED_LAWS
 
     damper = resolve_damper(args.damper)
     bench = _bench_for(args)
@@ -584,20 +583,20 @@ def _cmd_cable(args) -> int:
         raise InputError(f"{bench.source}: no rows of damper {damper.name!r} (has: {', '.join(bench.dampers())})")
     if args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be >= 1")
-    laws = FITTED_LAWS if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
+    laws = None if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
     fits, comparison = fit_damper_cable(damper, bench, laws=laws, seed=args.seed, prior_path=args.priors,
                                         workers=args.workers, progress=not args.quiet)
     best = comparison["best"]
     for state, fit in sorted(fits[best].items()):
         out = Path(args.runs) / damper.name / f"cable-{state}"
         s = store_cable(fit, out, meta={"seed": args.seed, "made_by": args.command_line, "damper_values": asdict(damper)},
-                        comparison=comparison if len(laws) > 1 else None)
+                        comparison=comparison if len(fits) > 1 else None)
         flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
         vals = ", ".join(f"{n} {p['median']:.3g} [{p['q05']:.3g}, {p['q95']:.3g}]" for n, p in s["parameters"].items())
         print(f"{damper.name} cable {state} ({best}, {len(fit.tests)} tests): {vals}; R-hat max {s['r_hat_max']:.3f}, "
               f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.0f} s{flag}")
         print(f"  stored in {out}/")
-    if len(laws) > 1:
+    if len(fits) > 1:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
             f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" for law, v in comparison["families"].items())
             + f" (best: {best})")

@@ -36,7 +36,7 @@ from scipy.optimize import least_squares
 from scipy.stats import qmc
 
 from .bench import remove_outlier_runs, rows_digest
-from .cable_fit import SECONDARY, CableFit, cable_likelihood, compare_families, state_tests, store_cable
+from .cable_fit import SECONDARY, CableFit, cable_likelihood, compare_families, compared_laws, state_tests, store_cable
 from .calibrate import likelihood_for
 from .damper import Damper
 from .errors import InputError
@@ -137,7 +137,7 @@ def _jobs(primary, secondary, damper, bench, tests, ss, config, prior_path) -> l
     if primary == "strand_slip":
         jobs = []
         for state, members in sorted(state_tests(tests).items()):
-            for law in config.laws:
+            for law in compared_laws(config.laws, tests):
                 like = cable_likelihood(damper, bench, members, law, effects=secondary, prior_path=prior_path)
                 jobs.append(((_name(primary, secondary), state, law), like))
     else:

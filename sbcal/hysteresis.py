@@ -69,7 +69,6 @@ __all__ = [
     "LognormalIwanLaw",
     "LAWS",
     "FITTED_LAWS",
-    "FITTABLE_LAWS",
     "law_for",
     "jenkins_rigidity",
 ]
@@ -121,6 +120,8 @@ class HysteresisLaw:
 
     name: ClassVar[str] = ""
     parameters: ClassVar[tuple] = ()
+    min_tests: ClassVar[int] = 1
+    """Tests (amplitudes) a cable state needs before the family is compared on it."""
 
     @property
     def parameter_names(self) -> tuple:
@@ -732,6 +733,9 @@ class IwanTailLaw(HysteresisLaw):
     """
 
     name: ClassVar[str] = "iwan_tail"
+    # one amplitude does not pin the tail down: on the bundled oiled cables (one test each) the posterior
+    # did not mix (acceptance 2-3 %, tau 550, still not converged at 24 000 steps; docs/cable.md)
+    min_tests: ClassVar[int] = 2
     parameters: ClassVar[tuple] = (
         _DELTA_EJ,
         _CHI_MICRO,
@@ -879,15 +883,11 @@ class LognormalIwanLaw(HysteresisLaw):
 LAWS = {law.name: law for law in (BoucWenLaw, Iwan5Law, IwanTailLaw, DahlLaw, IwanLaw, LognormalIwanLaw)}
 """Law classes by name."""
 
-FITTED_LAWS = ("bouc_wen", "iwan5")
-"""The families a calibration fits and compares by default (two shapes: a smooth Dahl-like knee, a
-spread of slipping wires); ``dahl`` and ``iwan`` are their special cases, ``lognormal_iwan`` the
+FITTED_LAWS = ("bouc_wen", "iwan5", "iwan_tail")
+"""The families a calibration fits and compares (three shapes: a smooth Dahl-like knee, a spread of
+slipping wires ending sharply, one ending in a power-law tail; each only where every cable state has
+its :attr:`HysteresisLaw.min_tests`); ``dahl`` and ``iwan`` are special cases, ``lognormal_iwan`` the
 virtual bench's own."""
-
-FITTABLE_LAWS = FITTED_LAWS + ("iwan_tail",)
-"""Every family with prior boxes (``priors/cable.toml``): ``iwan_tail`` is fitted on request
-(``sbcal cable --law iwan_tail``) — on a cable state of one test its posterior does not mix
-(``docs/cable.md``, "Iwan with a power-law tail")."""
 
 
 def law_for(name: str) -> HysteresisLaw:

@@ -3,7 +3,8 @@
 import numpy as np
 
 from sbcal.bench import default_bench_path, load_bench
-from sbcal.cable_fit import cable_likelihood, cable_start, state_tests
+from sbcal.cable_fit import cable_likelihood, cable_start, compared_laws, state_tests
+from sbcal.hysteresis import FITTED_LAWS
 
 # Where the engine's own start (one differential-evolution search, seed 1) stopped on damper1's dry
 # cable under iwan5: chi_macro on its bound, a plateau where the law no longer changes within the
@@ -21,3 +22,10 @@ def test_the_cable_start_finds_the_mode_not_the_plateau(damper1):
     # log-posterior; the start (measured 711 above with seeds 0-2) need only be in its basin
     assert 0.2 < params["chi_macro"] < 0.35
     assert like(z[None])[0] > like(like.prior.z_of(PLATEAU))[0] + 500
+
+
+def test_a_tail_is_compared_only_where_every_state_has_two_tests():
+    """iwan_tail needs two amplitudes per cable state (one does not identify its tail); the others one."""
+    assert compared_laws(FITTED_LAWS, ["1-1", "2-2"]) == ("bouc_wen", "iwan5", "iwan_tail")
+    assert compared_laws(FITTED_LAWS, ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ("bouc_wen", "iwan5")
+    assert compared_laws(FITTED_LAWS, ["1-1"]) == ("bouc_wen", "iwan5")
