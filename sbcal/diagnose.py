@@ -80,7 +80,8 @@ class DiagnoseConfig:
         Screening: lag-1 correlation of the residuals over frequency (structured misfit) that admits
         the extensions without a specific signature, or curvature correlation for strand slip.
     laws : tuple of str
-        The cable-law families fitted for ``strand_slip`` (:data:`sbcal.hysteresis.FITTED_LAWS`).
+        The cable-law families fitted for ``strand_slip`` (:data:`sbcal.hysteresis.FITTED_LAWS`), those
+        of them a damper's cable states have the tests for (:func:`sbcal.cable_fit.compared_laws`).
     secondary : bool
         Search for a second effect on top of the verdict's.
     draws : int
