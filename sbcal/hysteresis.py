@@ -766,7 +766,7 @@ class IwanTailLaw(HysteresisLaw):
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent):
         shape = np.broadcast_shapes(np.shape(chi), np.shape(delta_EJ), np.shape(chi_micro), np.shape(chi_tail),
                                     np.shape(density_exponent), np.shape(tail_exponent))
-        chi, dej, lo, hi, c, ct = (np.broadcast_to(np.asarray(v, dtype=float), shape).astype(float) for v in
+        chi, dej, lo, hi, c, ct = (np.broadcast_to(np.asarray(v, dtype=float), shape) for v in
                                    (chi, delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent))
         r = self._scale(dej, lo, hi, c, ct)
         out = np.array(dej, dtype=complex)  # stuck below chi_micro

@@ -114,7 +114,7 @@ class SlipLaw:
         defaults to ``ej_static - EJ`` (the stuck cable is the damper's static rigidity), and
         ``micro_exponent = -0.5``, ``macro_ratio = 0`` (iwan), ``log_spread = 1.5`` (lognormal_iwan),
         ``sharpness = 1`` (bouc_wen), ``chi_micro = 1e-6``, ``density_exponent = -0.5``, ``macro_ratio = 0``
-        (iwan5; iwan_tail: ``tail_exponent = -1.5`` for the point mass). The law's curvature scale
+        (iwan5; iwan_tail the same with ``tail_exponent = -1.5`` in place of ``macro_ratio``). The law's curvature scale
         (``chi_dahl``, ``chi_macro``, ``chi_median``, ``chi_slip``, ``chi_tail``) is required.
     elements : int
         Hermite elements per arm (default :data:`BENCH_ELEMENTS`).
