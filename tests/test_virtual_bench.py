@@ -356,13 +356,60 @@ def test_bundled_data_has_both_dampers_and_the_plan():
     assert (s.stiffness_n_per_m > 0).all()
 
 
-def test_bundled_data_regenerates_byte_for_byte(tmp_path):
+# The file holds 10 significant digits (write_bench's %.10g); the generator solves the strand-slip
+# fixed point to BenchConfig.slip_tol = 1e-9 on ln(chi). Tightening that tolerance (3e-10, the
+# solver's floor) moves ln|f| by at most 7e-10 and the phase by at most 2.1e-9 rad over the bundled
+# tests, so two correct builds (other numpy, scipy, BLAS) agree to twice that: 4 x slip_tol bounds
+# both, and the rounding of the printed digit comes on top. A parameter moved by 1e-6 relative (EJ:
+# ln|f| by 9e-7 to 1.5e-6, phase by 1.1e-6 to 1.9e-6 rad) or another random stream is 200x beyond.
+SOLVE_TOL = 4 * BenchConfig().slip_tol
+KEYS = ["damper", "test", "run", "frequency_hz", "amplitude_mm_pp"]
+
+
+def _half_unit(printed, digits=10):
+    """Half a unit in the last digit of ``printed`` as ``%.{digits}g`` writes it: the file's rounding."""
+    a = np.abs(np.asarray(printed, dtype=float))
+    return 0.5 * 10.0 ** (np.floor(np.log10(np.where(a > 0, a, 1.0))) - (digits - 1))
+
+
+def _mismatch(stored: pd.DataFrame, fresh: pd.DataFrame) -> pd.DataFrame:
+    """Rows of ``fresh`` (unrounded) whose numbers miss the ``stored`` file's by more than its rounding
+    plus the solve's error; the plan columns (keys) must match exactly, row for row."""
+    m = stored.merge(fresh, on=KEYS, how="outer", suffixes=("_file", "_now"), indicator=True)
+    if (m["_merge"] != "both").any():
+        return m[m["_merge"] != "both"]
+    k_file, k_now = m.stiffness_n_per_m_file.to_numpy(), m.stiffness_n_per_m_now.to_numpy()
+    p_file, p_now = m.phase_deg_file.to_numpy(), m.phase_deg_now.to_numpy()
+    off_k = np.abs(k_now - k_file) > _half_unit(k_file) + SOLVE_TOL * np.abs(k_file)
+    off_p = np.abs(p_now - p_file) > _half_unit(p_file) + np.degrees(SOLVE_TOL)
+    return m[off_k | off_p]
+
+
+@pytest.fixture(scope="module")
+def bundled_file():
+    return pd.read_csv(ROOT / "sbcal" / "data" / "bench.csv")
+
+
+def test_bundled_data_regenerates_within_its_printed_digits(bundled_file):
+    """The script regenerates every row of the bundled file to the digits it holds (not byte for byte:
+    the last digit may round the other way under another build of numpy or scipy)."""
+    fresh = _script().generate()
+    assert list(fresh.columns) == list(bundled_file.columns) == list(BENCH_COLUMNS)
+    assert len(fresh) == len(bundled_file)
+    off = _mismatch(bundled_file, fresh)
+    assert off.empty, f"{len(off)} rows differ, first:\n{off.head().to_string()}"
+
+
+@pytest.mark.parametrize("change", ["EJ", "seed"])
+def test_regeneration_check_fails_on_a_perturbed_generator(bundled_file, change):
+    """The check above has the power it claims: EJ moved by 1e-6 relative, or another seed, fails it."""
     mod = _script()
-    bundled = (ROOT / "sbcal" / "data" / "bench.csv").read_text().splitlines(keepends=True)
-    for damper, test in (("damper2", "2-1"), ("damper1", "1-1-oiled")):
-        frame = mod.generate(only=[(damper, test)])
-        write_bench(frame, tmp_path / "part.csv")
-        part = (tmp_path / "part.csv").read_text().splitlines(keepends=True)
-        assert part[0] == bundled[0]
-        start = bundled.index(part[1])
-        assert bundled[start:start + len(part) - 1] == part[1:]
+    if change == "EJ":
+        cable = mod.CABLES["damper1", "dry"]
+        mod.CABLES["damper1", "dry"] = dict(cable, params=dict(cable["params"], EJ=cable["params"]["EJ"] * (1 + 1e-6)))
+    else:
+        mod.SEED += 1
+    fresh = mod.generate(only=[("damper1", "0.5-0.5"), ("damper1", "2-1")])
+    off = _mismatch(bundled_file[bundled_file.damper.eq("damper1") & bundled_file.test.isin(["0.5-0.5", "2-1"])], fresh)
+    # measured: every one of the 1776 rows fails either way (EJ x (1 + 1e-7) still fails 91 %)
+    assert len(off) > 0.9 * len(fresh), len(off)
