@@ -364,6 +364,8 @@ def _cmd_report(args) -> int:
 
 
 def _add_run(sub):
+    from .pipeline import STAGES
+
     p = sub.add_parser("run", help="the whole job: clean, sample every test, diagnose, map, report",
                        description="Every stage for the chosen dampers, one way through the run store: clean, "
                                    "sample every test, diagnose missing physics, fit the amplitude map, write the "
@@ -379,6 +381,8 @@ def _add_run(sub):
     _scale_options(p)
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
+    p.add_argument("--until", default="report", choices=STAGES, metavar="STAGE",
+                   help=f"stop after this stage, its results stored ({', '.join(STAGES)}; default report: the whole job)")
     return p
 
 
@@ -398,8 +402,8 @@ def _cmd_run(args) -> int:
     settings = _settings(args)
     with executor_for(args.scheduler) as executor:
         index = run(bench, dampers, args.runs, args.output, settings, executor=executor,
-                    command=args.command_line, progress=not args.quiet)
-    print(f"wrote {index}")
+                    command=args.command_line, progress=not args.quiet, until=args.until)
+    print(f"wrote {index}" if index is not None else f"stopped after {args.until}: results stored in {args.runs}")
     return 0
 
 

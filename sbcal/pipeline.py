@@ -38,7 +38,9 @@ from .progress import progress_bar
 from .workers import one_blas_thread
 
 __all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "sample_inputs",
-           "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run"]
+           "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run", "STAGES"]
+
+STAGES = ("clean", "sample", "diagnose", "map", "report")  # the order of ``run``; ``--until`` names one
 
 
 @dataclass(frozen=True)
@@ -319,28 +321,39 @@ def map_damper(store, damper: str, settings: Settings, *, include_oiled: bool = 
 
 
 def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None, command: str = "",
-        progress: bool = True, say=print) -> Path:
+        progress: bool = True, say=print, until: str = "report") -> Path | None:
     """The whole job for ``dampers``, stage after stage, reusing what is fresh; returns the report path.
 
-    ``say`` gets one line per stage, damper and test: reused or redone, and why.
+    ``say`` gets one line per stage, damper and test: reused or redone, and why. ``until`` (one of
+    :data:`STAGES`) stops after that stage, its results stored; then no report is written (None).
     """
     from .report import build_report
 
+    if until not in STAGES:
+        raise InputError(f"until: expected one of {', '.join(STAGES)}, got {until!r}")
     for damper in dampers:
         _, status = clean_damper(bench, damper, store, settings)
         say(f"{damper.name}: clean: {status}")
+    if until == "clean":
+        return None
     work = [(d, t) for d in dampers for t in bench.tests(d.name)]
     for (name, t), (summary, status) in sample_tests(bench, work, store, settings, executor=executor,
                                                      command=command, progress=progress).items():
         flag = "" if summary is None or summary.get("converged") else f"; NOT CONVERGED ({summary.get('reason')})"
         say(f"{name}: sample {t}: {status}{flag}")
+    if until == "sample":
+        return None
     for name, (doc, status) in diagnose_dampers(bench, dampers, store, settings, executor=executor,
                                                 command=command, progress=progress).items():
         say(f"{name}: diagnose: {status}; verdict {doc['verdict']}")
+    if until == "diagnose":
+        return None
     for damper in dampers:
         doc, status = map_damper(store, damper.name, settings)
         say(f"{damper.name}: map: {status}" + ("" if doc is None else f"; preferred {doc['preferred']}"
                                                 + ("" if doc["converged"] else "; NOT CONVERGED")))
+    if until == "map":
+        return None
     index = build_report(store, report_dir, paramset=settings.paramset, command=command, workers=settings.workers)
     say(f"report: {index}")
     return index

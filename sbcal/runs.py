@@ -32,15 +32,22 @@ SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
 
 
 def versions() -> dict:
-    """Versions of sbcal and the libraries that shape its numbers."""
+    """Versions of Python, sbcal and every library that can move a stored number.
+
+    numpy and scipy (the model, the solves, the random streams), emcee (the sampler's moves), pandas
+    (reading the bench files), ArviZ (R-hat, ESS, PSIS-LOO) and xarray (the netCDF store it writes
+    through). Under one set of these the same seed gives the same numbers, bit for bit.
+    """
     from importlib.metadata import version
 
+    import pandas
     import scipy
 
     from . import __version__
 
     return {"sbcal": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "scipy": scipy.__version__, "emcee": version("emcee"), "arviz": arviz_version()}
+            "scipy": scipy.__version__, "emcee": version("emcee"), "pandas": pandas.__version__,
+            "arviz": arviz_version(), "xarray": xr.__version__}
 
 
 def run_dir(out, damper: str, test: str, paramset: str) -> Path:

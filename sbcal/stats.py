@@ -14,8 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
+# ArviZ 0.x announces its 1.x refactor once a day on import; the bound arviz<1 is the answer to it
+_REFACTOR_NOTICE = r"\s*ArviZ is undergoing a major refactor"
 with warnings.catch_warnings():
-    warnings.simplefilter("ignore", FutureWarning)  # ArviZ 0.x announces its 1.x refactor on import
+    warnings.filterwarnings("ignore", message=_REFACTOR_NOTICE, category=FutureWarning)
     import arviz as az
 
 __all__ = ["convergence", "Loo", "loo", "elpd_difference", "arviz_version", "inference_data", "read_netcdf"]
@@ -33,7 +35,7 @@ def inference_data(**groups):
 def read_netcdf(path):
     """``arviz.from_netcdf``: a stored run's InferenceData."""
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
+        warnings.filterwarnings("ignore", message=_REFACTOR_NOTICE, category=FutureWarning)
         return az.from_netcdf(str(path))
 
 
@@ -51,7 +53,9 @@ def convergence(draws: dict) -> dict:
     """
     idata = az.from_dict(posterior={n: np.asarray(v, float) for n, v in draws.items()})
     with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")  # constant draws: ArviZ warns and returns NaN, which we keep
+        # constant draws: ArviZ warns and returns NaN, which we keep (a deprecation still shows)
+        for category in (UserWarning, RuntimeWarning):
+            warnings.simplefilter("ignore", category)
         r = az.rhat(idata, method="rank")
         bulk = az.ess(idata, method="bulk")
         tail = az.ess(idata, method="tail")
@@ -91,7 +95,9 @@ def loo(log_lik) -> Loo:
         ll = ll[None]
     idata = az.from_dict(posterior={"_": np.zeros(ll.shape[:2])}, log_likelihood={"y": ll})
     with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")  # Pareto-k warnings are reported by the callers that care
+        # Pareto-k warnings are reported by the callers that care (a deprecation still shows)
+        for category in (UserWarning, RuntimeWarning):
+            warnings.simplefilter("ignore", category)
         res = az.loo(idata, pointwise=True)
     out = np.asarray(res.loo_i, dtype=float)
     bad = ~np.isfinite(out)

@@ -84,6 +84,18 @@ def test_run_cli_bad_prior_file_is_one_line(bench_path, tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+def test_run_until_a_stage_stores_it_and_stops(bench_path, tmp_path, capsys):
+    """'sbcal run --until clean' (scripts/fresh-check's cut of the main job): the stage stored, nothing after."""
+    store, report = tmp_path / "r", tmp_path / "rep"
+    rc = main(["run", "--bench", str(bench_path), "--runs", str(store), "-o", str(report), "--until", "clean", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "damper1: clean: redone" in out and "stopped after clean" in out
+    assert sorted(p.name for p in (store / "damper1").iterdir()) == ["data.json"] and not report.exists()
+    rc = main(["run", "--bench", str(bench_path), "--runs", str(store), "--until", "sample-all", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "--until" in err and "\n" not in err
+
+
 def test_dask_cluster_gives_the_same_draws(bench_path, tmp_path):
     """'sample --all --scheduler ADDRESS' on a local Dask cluster stores the very draws of a local run."""
     distributed = pytest.importorskip("distributed")

@@ -42,10 +42,8 @@ def test_stored_run_opens_in_arviz(bench, tmp_path):
         assert k in on_disk
     for p in ("EJ", "beta"):
         assert set(on_disk["parameters"][p]) >= {"median", "q05", "q95", "r_hat", "ess_bulk", "tau"}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        idata = az.from_netcdf(path / "posterior.nc")
-        table = az.summary(idata, kind="diagnostics", round_to="none")
+    idata = az.from_netcdf(path / "posterior.nc")
+    table = az.summary(idata, kind="diagnostics", round_to="none")
     assert set(idata.groups()) >= {"posterior", "sample_stats", "log_likelihood", "posterior_predictive",
                                    "observed_data", "constant_data"}
     # the real chain structure: one chain per independently seeded ensemble, and ArviZ reading the
@@ -63,7 +61,10 @@ def test_stored_run_opens_in_arviz(bench, tmp_path):
     assert idata.observed_data["logmag"].shape == (5, F.size)
     cfg = json.loads(idata.posterior.attrs["sbcal_config"])
     assert cfg["test"] == "0.5-0.5" and idata.posterior.attrs["seed"] == 5
-    assert "emcee" in json.loads(idata.posterior.attrs["versions"])
+    stored = json.loads(idata.posterior.attrs["versions"])
+    # every package that can move a number, so a run says what it takes to get it again bit for bit
+    assert {"sbcal", "python", "numpy", "scipy", "emcee", "pandas", "arviz", "xarray"} <= set(stored)
+    assert stored == on_disk["versions"] and stored["pandas"] == pd.__version__
     assert abs(on_disk["parameters"]["EJ"]["median"] - 10.0) < 0.5
 
 
@@ -113,6 +114,12 @@ def test_loo_falls_back_where_pareto_smoothing_fails(monkeypatch):
     assert out[1] == pytest.approx(ll[..., 1].min() + np.log(400), abs=1.0)
 
 
+# ArviZ 0.x's compare sorts its table with ``sort_values(inplace=True)`` (arviz/stats/stats.py), which
+# pandas 3.1 deprecates (Pandas4Warning, PDEP-8) and pandas 4 removes. sbcal never calls compare (its
+# ELPD differences are computed in sbcal.stats); this test uses it as the reference, so the warning is
+# ArviZ's own and filtered here by its text, and under pandas >= 4 the reference is checked to fail for
+# exactly that reason (then the ArviZ-independent check below still runs).
+@pytest.mark.filterwarnings("ignore:The inplace keyword in DataFrame.sort_values is deprecated:DeprecationWarning:arviz")
 def test_elpd_difference_is_arviz_compare():
     """One helper for ELPD differences: its standard error is arviz.compare's dSE."""
     import arviz as az
@@ -123,10 +130,32 @@ def test_elpd_difference_is_arviz_compare():
     a = rng.normal(-5, 1, (4, 250, 30))
     b = a + rng.normal(0.3, 0.5, 30)  # a better model on most points
     idata = {m: az.from_dict(posterior={"x": np.zeros((4, 250))}, log_likelihood={"y": ll}) for m, ll in (("a", a), ("b", b))}
-    table = az.compare(idata, ic="loo")
     d, se = elpd_difference(loo(a), loo(b))
+    # ArviZ's own numbers without compare: the two PSIS-LOO sums and the pointwise differences
+    la, lb = (az.loo(idata[m], pointwise=True) for m in ("a", "b"))
+    diff = np.asarray(lb.loo_i) - np.asarray(la.loo_i)
+    assert d == pytest.approx(lb.elpd_loo - la.elpd_loo, rel=1e-9)
+    assert se == pytest.approx(np.sqrt(diff.size * np.var(diff)), rel=1e-9)
+    try:
+        table = az.compare(idata, ic="loo")
+    except TypeError as err:
+        if int(pd.__version__.split(".")[0]) < 4 or "inplace" not in str(err):
+            raise
+        return  # pandas >= 4 without ArviZ's fix: the reference itself is broken, for the known reason
     assert d == pytest.approx(table.loc["a", "elpd_diff"], rel=1e-9)
     assert se == pytest.approx(table.loc["a", "dse"], rel=1e-9)
+
+
+def test_a_deprecation_sbcal_triggers_is_an_error():
+    """pyproject's filterwarnings: a deprecation attributed to sbcal's modules fails the test run,
+    one attributed to a third-party library's own code does not."""
+
+    with pytest.raises(DeprecationWarning):
+        warnings.warn_explicit("old", DeprecationWarning, "sbcal/bench.py", 1, module="sbcal.bench")
+    with pytest.raises(FutureWarning):
+        warnings.warn_explicit("old", FutureWarning, "sbcal/stats.py", 1, module="sbcal.stats")
+    with pytest.warns(DeprecationWarning):
+        warnings.warn_explicit("old", DeprecationWarning, "x/y.py", 1, module="somelib.y")
 
 
 def test_permuted_prior_file_gives_the_same_numbers(bench, tmp_path):
