@@ -889,15 +889,19 @@ def _load_parquet(p: Path) -> pd.DataFrame:
     import pyarrow.parquet as pq
 
     try:
-        schema = pq.read_schema(p)
+        meta = pq.read_metadata(p)
+        schema = meta.schema.to_arrow_schema()
     except (pa.ArrowException, OSError) as e:
         raise InputError(f"{p}: cannot read as Parquet: {str(e).strip().splitlines()[0]}") from None
     _check_header(p, [n.strip() for n in schema.names], "schema")
+    if meta.num_rows == 0:  # before the types: a writer may type an empty column as null
+        raise InputError(f"{p}: no data rows")
+    text_types = (pa.types.is_string, pa.types.is_large_string, getattr(pa.types, "is_string_view", lambda t: False))
     for col in BENCH_COLUMNS:
         t = schema.field(schema.names.index(col)).type
         base = t.value_type if pa.types.is_dictionary(t) else t
         if col in _LABELS:
-            ok = pa.types.is_string(base) or pa.types.is_large_string(base) or pa.types.is_integer(base)
+            ok = any(is_text(base) for is_text in text_types) or pa.types.is_integer(base)
             want = "text"
         else:
             ok = pa.types.is_integer(base) or pa.types.is_floating(base) or pa.types.is_decimal(base)
