@@ -24,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from sbcal.bench import default_bench_path, load_bench  # noqa: E402
-from sbcal.cable_fit import cable_config, cable_likelihood, fit_cable, state_tests  # noqa: E402
+from sbcal.cable_fit import fit_cable, state_tests  # noqa: E402
 from sbcal.damper import resolve_damper  # noqa: E402
 from sbcal.hysteresis import FITTED_LAWS  # noqa: E402
 
@@ -64,10 +64,8 @@ def main():
         for state in args.states:
             for law in args.laws:
                 tests = groups[state]
-                ndim = cable_likelihood(damper, bench, tests, law).prior.ndim
                 load0, c0, t0 = os.getloadavg()[0], cpu_s(), time.perf_counter()
-                fit = fit_cable(damper, bench, tests, law, seed=args.seed,
-                                config=cable_config(ndim, workers=args.workers))
+                fit = fit_cable(damper, bench, tests, law, seed=args.seed, workers=args.workers)
                 wall, cpu, load1 = time.perf_counter() - t0, cpu_s() - c0, os.getloadavg()[0]
                 r = fit.result
                 ess = min(r.ess_bulk_min, r.ess_tail_min)

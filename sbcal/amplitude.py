@@ -35,6 +35,7 @@ from .errors import InputError
 from .priors import Prior
 from .runs import posterior_draws
 from .sampler import SamplerConfig, sample
+from .seeds import job_seed
 from .stats import elpd_difference, loo
 
 __all__ = ["TestPoint", "LawFit", "fit_law", "amplitude_map", "map_from_store", "stored_maps", "law_curve", "plot_map",
@@ -143,7 +144,7 @@ class LawFit:
         return out
 
 
-def fit_law(points, law: str, *, seed: int, ceiling: float | None = None,
+def fit_law(points, law: str, *, seed, ceiling: float | None = None,
             config: SamplerConfig = SamplerConfig()) -> LawFit:
     """Fit one law to test points by errors in variables (module docstring).
 
@@ -152,7 +153,7 @@ def fit_law(points, law: str, *, seed: int, ceiling: float | None = None,
     points : sequence of TestPoint
         At least 3, at distinct amplitudes.
     law : {"powerlaw", "saturating"}
-    seed : int
+    seed : int or numpy.random.SeedSequence
     ceiling : float, optional
         Upper bound of EJ_inf (the damper's EJ_static); default 10x the largest median.
     config : SamplerConfig
@@ -228,9 +229,10 @@ def points_from_runs(runs_dir, damper: str, parameter: str = "EJ", paramset: str
     return _points(posterior_draws(runs_dir, damper, paramset, (parameter,)), damper, parameter, include, mixed)
 
 
-def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float | None = None,
+def amplitude_map(ej_points, beta_points=(), *, seed=0, ej_static: float | None = None,
                   config: SamplerConfig = SamplerConfig()):
-    """Fit both laws to EJ and the power law to beta.
+    """Fit both laws to EJ and the power law to beta (each fit's stream keyed by its name under ``seed``:
+    an int, or a damper's map stream from :func:`map_from_store`).
 
     Returns ``(doc, fits)``: ``doc`` is the ``sbcal map --json`` document, ``fits`` the two
     :class:`LawFit` of EJ (for plots).
@@ -240,8 +242,8 @@ def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float 
     "preferred": "powerlaw|saturating", "criterion": str, "beta": {...}, "tests": [...], "converged"}``
     with every interval a 90 % one; ``converged`` is false when any of the fits is not.
     """
-    pl = fit_law(ej_points, "powerlaw", seed=seed, config=config)
-    sat = fit_law(ej_points, "saturating", seed=seed + 1, ceiling=ej_static, config=config)
+    pl = fit_law(ej_points, "powerlaw", seed=job_seed(seed, "EJ", "powerlaw"), config=config)
+    sat = fit_law(ej_points, "saturating", seed=job_seed(seed, "EJ", "saturating"), ceiling=ej_static, config=config)
     diff, se = elpd_difference(pl.loo, sat.loo)
     preferred = "saturating" if diff > max(PREFER_MIN_NATS, PREFER_MIN_SE * se) else "powerlaw"
     doc = {
@@ -259,7 +261,7 @@ def amplitude_map(ej_points, beta_points=(), *, seed: int = 0, ej_static: float 
         doc["saturating"]["reduction_factor"] = _interval(ej_static / sat.draws["EJ_inf"])
     fits = [pl, sat]
     if len(beta_points) >= 3:
-        bl = fit_law(beta_points, "powerlaw", seed=seed + 2, config=config)
+        bl = fit_law(beta_points, "powerlaw", seed=job_seed(seed, "beta", "powerlaw"), config=config)
         fits.append(bl)
         doc["beta"] = {"powerlaw": bl.summary(),
                        "tests": [{"damper": p.damper, "test": p.test, "amplitude_mm_pp": p.amplitude,
@@ -315,7 +317,7 @@ def map_from_store(runs_dir, damper: str, paramset: str = "theta1", *, seed: int
     beta = _points(records, damper, "beta", keep)
     statics = {r.summary.get("config", {}).get("damper_values", {}).get("ej_static") for r in records}
     ceiling = statics.pop() if len(statics) == 1 else None  # runs of one damper description
-    doc, fits = amplitude_map(ej, beta, seed=seed, ej_static=ceiling, config=config)
+    doc, fits = amplitude_map(ej, beta, seed=job_seed(seed, "map", damper), ej_static=ceiling, config=config)
     every = _points(records, damper, "EJ", mixed=True)
     used = {p.test for p in ej}
     doc["excluded"] = [{"test": p.test, "amplitude_mm_pp": p.amplitude, "ej_nm2": [p.median, p.lo, p.hi]}
@@ -482,7 +484,8 @@ def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config: Sampl
     for t in tests:
         for q, default in zip(_PER_TEST, (0.3, 0.1, 0.1)):
             guess[_per_test(q, t)] = s.get(q, {}).get(t, default)
-    res = sample(target, seed=seed, config=config, start=guess, progress=progress)
+    res = sample(target, seed=job_seed(seed, "map_joint", damper.name), config=config, start=guess,
+                 progress=progress)
     draws = res.flat()
     return {
         "k": _interval(draws["k"]), "n": _interval(draws["n"]),

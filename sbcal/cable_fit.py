@@ -29,7 +29,7 @@ from scipy.optimize import differential_evolution, least_squares, minimize
 from scipy.stats import qmc
 
 from .bench import remove_outlier_runs
-from .cable import DEFAULT_SECTIONS, CableModel, segments_from_frequencies
+from .cable import DEFAULT_SECTIONS, CableModel
 from .calibrate import likelihood_for
 from .damper import Damper
 from .errors import InputError
@@ -37,10 +37,11 @@ from .hysteresis import FITTED_LAWS, law_for
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
+from .seeds import job_seed, seed_key
 from .stats import elpd_difference, loo
 
 __all__ = ["SECONDARY", "cable_state", "state_tests", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
-           "fit_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
+           "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
@@ -274,8 +275,41 @@ class CableFit:
         return {n: float(np.median(v)) for n, v in self.result.draws.items()}
 
 
-def fit_cable(damper: Damper, bench, tests, law: str, *, seed, effects=(), config: SamplerConfig | None = None,
-              start=None, prior_path=None, progress: str | None = None) -> CableFit:
+def cable_seed(seed, damper: str, state: str, law: str, effects=()) -> np.random.SeedSequence:
+    """The stream of one cable fit, keyed by what it is (:func:`sbcal.seeds.job_seed`): ``sbcal cable``,
+    ``sbcal diagnose`` and ``sbcal run`` draw the same numbers for the same seed and data."""
+    return job_seed(seed, "cable", damper, state, law, *effects)
+
+
+def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config: SamplerConfig | None = None,
+                 start=None, progress: str | None = None):
+    """The cable-law fit, the one every command uses: :func:`cable_start`, then the engine.
+
+    Parameters
+    ----------
+    like : JointLikelihood
+        A cable state's likelihood (:func:`cable_likelihood`).
+    seed : numpy.random.SeedSequence
+        The fit's stream (:func:`cable_seed`); the start and the engine each get a child of it.
+    config : SamplerConfig, optional
+        Default :func:`cable_config`.
+    start : dict, optional
+        Natural values by name to polish the mode from (default: :func:`cable_start`).
+    progress : str, optional
+
+    Returns
+    -------
+    SampleResult
+    """
+    s_start, s_sample = seed.spawn(2)
+    if start is None:
+        start = cable_start(like, np.random.default_rng(s_start))
+    return sample(like, seed=s_sample, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
+
+
+def fit_cable(damper: Damper, bench, tests, law: str, *, seed: int, effects=(), workers: int = 2,
+              max_steps: int = 8000, max_draws: int = 250, start=None, prior_path=None,
+              progress: str | None = None) -> CableFit:
     """Sample one cable state's law (see the module docstring).
 
     Parameters
@@ -286,25 +320,26 @@ def fit_cable(damper: Damper, bench, tests, law: str, *, seed, effects=(), confi
         The tests of one cable state.
     law : str
         A fitted family (:data:`sbcal.hysteresis.FITTED_LAWS`).
-    seed : int or numpy.random.SeedSequence
+    seed : int
+        The user's seed; the fit's stream is :func:`cable_seed` of it.
     effects : sequence of str
         Secondary effects on top (:data:`SECONDARY`).
-    config : SamplerConfig, optional
-        Default :func:`cable_config`.
+    workers, max_steps, max_draws : int
+        As :func:`cable_config` (the draws do not depend on ``workers``).
     start : dict, optional
         Natural values by name to polish the mode from (default: :func:`cable_start`).
     prior_path : path-like, optional
         The prior file of the base geometry boxes (``--priors``).
     progress : str, optional
     """
+    tests = tuple(tests)
     like = cable_likelihood(damper, bench, tests, law, effects=effects, prior_path=prior_path)
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    s_start, s_sample = root.spawn(2)
-    if start is None:
-        start = cable_start(like, np.random.default_rng(s_start))
-    res = sample(like, seed=s_sample, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
-    return CableFit(damper=damper.name, state=cable_state(list(tests)[0]), law=law, tests=tuple(tests),
-                    effects=tuple(effects), result=res, like=like, loo=loo(res.log_likelihood))
+    state = cable_state(tests[0])
+    config = cable_config(like.prior.ndim, workers=workers, max_steps=max_steps, max_draws=max_draws)
+    res = sample_cable(like, seed=cable_seed(seed, damper.name, state, law, tuple(effects)), config=config,
+                       start=start, progress=progress)
+    return CableFit(damper=damper.name, state=state, law=law, tests=tests, effects=tuple(effects), result=res,
+                    like=like, loo=loo(res.log_likelihood))
 
 
 def compare_families(fits: dict) -> dict:
@@ -372,7 +407,8 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "tests": list(fit.tests), "parameters": parameter_summary(res), **res.convergence_dict(),
         "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
         "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
-        "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(), **meta,
+        "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
+        "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
     }
     groups = {
         "posterior": dict(res.draws), "sample_stats": {"lp": res.log_prob}, "log_likelihood": {"runs": res.log_likelihood},
@@ -409,18 +445,12 @@ def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=None, seed=0, pr
     tests = list(bench.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
     laws = compared_laws(FITTED_LAWS, tests) if laws is None else tuple(laws)
-    root = np.random.SeedSequence(seed)
     fits = {}
-    for law, ss in zip(laws, root.spawn(len(laws))):
+    for law in laws:
         fits[law] = {}
-        for (state, members), s in zip(sorted(groups.items()), ss.spawn(len(groups))):
+        for state, members in sorted(groups.items()):
             label = f"{damper.name} cable {state} ({law})" if progress else None
-            like = cable_likelihood(damper, bench, members, law, prior_path=prior_path)
-            fits[law][state] = fit_cable(damper, bench, members, law, seed=s, prior_path=prior_path, progress=label,
-                                         config=cable_config(like.prior.ndim, workers=workers))
+            fits[law][state] = fit_cable(damper, bench, members, law, seed=seed, prior_path=prior_path, progress=label,
+                                         workers=workers)
     return fits, compare_families(fits)
 
-
-def segments_of(likes) -> np.ndarray:
-    """Test index per concatenated line."""
-    return segments_from_frequencies(np.concatenate([lk.freq_hz for lk in likes]))

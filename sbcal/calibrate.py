@@ -17,6 +17,7 @@ from .priors import load_prior
 from .runs import run_dir, summarize, to_inference_data, versions, write_run
 from ._io import write_json
 from .sampler import SamplerConfig, sample
+from .seeds import job_seed, seed_key
 
 __all__ = ["likelihood_for", "test_likelihood", "calibrate_test", "point_fit_test"]
 
@@ -68,7 +69,8 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     paramset : str
         Named parameter set of the prior file.
     seed : int
-        The same seed gives the same draws.
+        The user's seed; the test's stream is keyed by ``("sample", damper, test)``
+        (:func:`sbcal.seeds.job_seed`): the same seed gives the same draws, whichever other tests run.
     out : path-like
         Root of the run store (``<out>/<damper>/<test>/<paramset>/``).
     config : SamplerConfig
@@ -84,15 +86,16 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     """
     like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path, z_threshold)
     label = f"{damper.name}/{test}/{paramset}"
-    seqs = np.random.SeedSequence(seed).spawn(2)  # the thesis's point fit and the posterior
-    point = fit_ga(like, seed=np.random.default_rng(seqs[0]), population=POINT_FIT_POPULATION,
+    key = ("sample", damper.name, test)
+    s_point, s_sample, s_predictive = job_seed(seed, *key).spawn(3)
+    point = fit_ga(like, seed=np.random.default_rng(s_point), population=POINT_FIT_POPULATION,
                    generations=POINT_FIT_GENERATIONS)
-    result = sample(like, seed=seqs[1], config=config, progress=label if progress else None)
+    result = sample(like, seed=s_sample, config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
             "bench": bench.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
             "command": command, "damper_values": asdict(damper)}
     idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
-                              seed=seed, meta=meta)
+                              seed=seed, seed_key=seed_key(*key), rng=np.random.default_rng(s_predictive), meta=meta)
     summary = summarize(idata, result, point_fit=point.as_dict())
     if inputs is not None:
         summary["inputs"] = inputs
@@ -104,8 +107,10 @@ def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
                    population: int = 500, generations: int = 500, prior_path=None) -> dict:
     """The thesis's workflow (GA point fit, here differential evolution) on one test; writes ``ga.json``."""
     like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path)
-    fit = fit_ga(like, seed=seed, population=population, generations=generations)
-    doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed,
+    key = ("point_fit", damper.name, test)
+    fit = fit_ga(like, seed=np.random.default_rng(job_seed(seed, *key)), population=population,
+                 generations=generations)
+    doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed, "seed_key": seed_key(*key),
            "removed_runs": list(cleaned.removed_runs), "versions": versions(), **fit.as_dict()}
     path = run_dir(out, damper.name, test, paramset) / "ga.json"
     write_json(path, doc, indent=2, sort_keys=True)

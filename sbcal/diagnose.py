@@ -32,11 +32,10 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from scipy import stats
-from scipy.optimize import least_squares
-from scipy.stats import qmc
 
 from .bench import remove_outlier_runs, rows_digest
-from .cable_fit import SECONDARY, CableFit, cable_likelihood, compare_families, compared_laws, state_tests, store_cable
+from .cable_fit import (SECONDARY, CableFit, cable_config, cable_likelihood, cable_seed, compare_families, compared_laws,
+                        sample_cable, state_tests, store_cable)
 from .calibrate import likelihood_for
 from .damper import Damper
 from .errors import InputError
@@ -48,6 +47,7 @@ from .priors import Prior, extension_prior
 from .progress import progress_bar
 from .runs import versions
 from .sampler import SamplerConfig, sample
+from .seeds import job_seed
 from .stats import elpd_difference, loo
 from .workers import one_blas_thread
 
@@ -108,9 +108,8 @@ class DiagnoseConfig:
     workers: int = field(default_factory=lambda: min(2, os.cpu_count() or 1))
 
     def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
-        if joint:
-            return SamplerConfig(nwalkers=2 * ndim + 2, max_draws=self.draws, max_steps=self.cable_max_steps,
-                                 first_steps=300, de_population=4 * ndim + 8, de_generations=60, workers=1)
+        if joint:  # the cable fit's own settings, capped as here
+            return cable_config(ndim, workers=1, max_steps=self.cable_max_steps, max_draws=self.draws)
         return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), max_draws=self.draws, max_steps=self.max_steps,
                              workers=1)
 
@@ -130,78 +129,40 @@ def _per_test_prior(primary: str, secondary, damper: Damper, prior_path) -> Prio
     return Prior.from_boxes(_name(primary, secondary), boxes)
 
 
-def _jobs(primary, secondary, damper, bench, tests, ss, config, prior_path) -> list:
+def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) -> list:
     """Fit jobs of one model: one per test, or for strand slip one per cable state and law family.
 
-    A job is ``(key, target)``: key ``(model name, test)`` or ``(model name, state, law)``.
+    A job is ``(key, target, stream, config)``: key ``(model name, test)`` or ``(model name, state,
+    law)``; the stream keyed by what the fit is (a cable fit's is :func:`sbcal.cable_fit.cable_seed`,
+    the same as ``sbcal cable``'s), so no fit's draws depend on which other fits run.
     """
+    name = _name(primary, secondary)
+    jobs = []
     if primary == "strand_slip":
-        jobs = []
         for state, members in sorted(state_tests(tests).items()):
             for law in compared_laws(config.laws, tests):
                 like = cable_likelihood(damper, bench, members, law, effects=secondary, prior_path=prior_path)
-                jobs.append(((_name(primary, secondary), state, law), like))
+                jobs.append(((name, state, law), like, cable_seed(seed, damper.name, state, law, tuple(secondary))))
     else:
         prior = _per_test_prior(primary, secondary, damper, prior_path)
         model = model_for(primary, secondary)
-        jobs = []
         for t in tests:
             data = remove_outlier_runs(bench.test(damper.name, t)).data
-            jobs.append(((_name(primary, secondary), t), likelihood_for(damper, data, prior, model=model)))
-    seeds = ss.spawn(len(jobs))
-    return [(key, target, s, config) for (key, target), s in zip(jobs, seeds)]
+            jobs.append(((name, t), likelihood_for(damper, data, prior, model=model),
+                         job_seed(seed, "diagnose", damper.name, name, t)))
+    return [(key, target, s, config) for key, target, s in jobs]
 
 
 # --- fits ----------------------------------------------------------------------------------------
 
-def _residual_batch(like: JointLikelihood, params: dict) -> np.ndarray:
-    """Standardised residuals of the run means, all tests, ``(n, n_values)``."""
-    out = []
-    for lk, mu in zip(like.likes, like.predict(params)):
-        r = lk.residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
-        out.append(np.moveaxis(r, 1, 0).reshape(mu.shape[1], -1))
-    r = np.concatenate(out, axis=1)
-    return np.where(np.isfinite(r), r, 1e3)
-
-
-def _start_joint(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
-    """A global start for a joint fit: the best of a Sobol design, refined by least squares."""
-    prior = like.prior
-    lo, hi = prior.z_lower, prior.z_upper
-    u = qmc.Sobol(prior.ndim, seed=rng).random(512)
-    z = lo + (hi - lo) * u
-    lp = np.concatenate([like(z[i:i + 128]) for i in range(0, len(z), 128)])
-    starts = z[np.argsort(-lp)[:4]]
-    step = 1e-6 * (hi - lo)
-
-    def fun(zz):
-        return _residual_batch(like, prior.params(zz))[0]
-
-    def jac(zz):
-        h = np.where(zz + step <= hi, step, -step)
-        r = _residual_batch(like, prior.params(np.vstack([zz, zz + np.diag(h)])))
-        return ((r[1:] - r[0]) / h[:, None]).T
-
-    best, best_lp = starts[0], -np.inf
-    for z0 in starts:
-        z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, max_nfev=80)
-        v = like(res.x)[0]
-        if v > best_lp:
-            best, best_lp = res.x, v
-    return best
-
-
 def _fit(job):
-    """One posterior through the engine (a test's, or a cable state's). Module-level: picklable."""
+    """One posterior through the engine (a test's, or a cable state's: :func:`sbcal.cable_fit.sample_cable`).
+    Module-level: picklable."""
     key, like, ss, config = job
-    joint = isinstance(like, JointLikelihood)
-    start = None
     with one_blas_thread():
-        if joint:  # a joint fit's box is wide and its mode narrow: a global least-squares start
-            s0, ss = ss.spawn(2)
-            start = _start_joint(like, np.random.default_rng(s0))
-        return key, sample(like, seed=ss, config=config.sampler(like.prior.ndim, joint), start=start)
+        if isinstance(like, JointLikelihood):
+            return key, sample_cable(like, seed=ss, config=config.sampler(like.prior.ndim, True))
+        return key, sample(like, seed=ss, config=config.sampler(like.prior.ndim))
 
 
 def _posterior(like, res) -> dict:
@@ -684,7 +645,8 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     tests : sequence of str, optional
         Test labels (default: all of the damper's tests).
     seed : int
-        Seeds every fit (through ``numpy.random.SeedSequence``): the same seed, the same numbers.
+        Seeds every fit, each through a stream keyed by what it is (:func:`sbcal.seeds.job_seed`): the
+        same seed, the same numbers; a cable fit's are ``sbcal cable``'s.
     config : DiagnoseConfig
     progress : bool
         Progress bars on stderr (when it is a terminal).
@@ -716,11 +678,9 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         if e not in EXTENSIONS:
             raise InputError(f"unknown effect {e!r}; known: {', '.join(EXTENSIONS)}")
     label = (lambda stage: f"diagnose {damper.name}: {stage}") if progress else (lambda stage: None)
-    root = np.random.SeedSequence(seed)
-    seqs = dict(zip(["baseline"] + list(EXTENSIONS) + ["secondary"], root.spawn(len(EXTENSIONS) + 2)))
 
     # 1-2. baseline and locate
-    jobs = _jobs("baseline", (), damper, bench, tests, seqs["baseline"], config, prior_path)
+    jobs = _jobs("baseline", (), damper, bench, tests, seed, config, prior_path)
     likes = [j[1] for j in jobs]
     fits = _run_fits(jobs, config, label("per-test fits"))
     base_fits = {k[1]: v for k, v in fits.items()}
@@ -738,7 +698,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
     all_jobs = []
     for e in candidates:
-        all_jobs += _jobs(e, (), damper, bench, tests, seqs[e], config, prior_path)
+        all_jobs += _jobs(e, (), damper, bench, tests, seed, config, prior_path)
     if all_jobs:
         fits.update(_run_fits(all_jobs, config, label(f"{len(candidates)} candidate extension(s)")))
     ranking, summaries, checks, kept, laws = _compare(candidates, lambda e: e, fits, base_check, bands, tests,
@@ -764,7 +724,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     secondary = None
     if config.secondary and verdict in EXTENSIONS and _composable(verdict):
         secondary = _secondary(verdict, shown_fits, checks[verdict], damper, bench, tests, likes, n_runs, config,
-                               seqs["secondary"], prior_path, label)
+                               seed, prior_path, label)
 
     if store is not None and verdict == "strand_slip":
         _store_cables(damper, shown_fits, store, seed, laws.get("strand_slip"), tests)
@@ -800,7 +760,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     return result
 
 
-def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes, n_runs, config, ss, prior_path,
+def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes, n_runs, config, seed, prior_path,
                label) -> dict | None:
     """The second effect on top of the verdict's model (module docstring, step 5), or None."""
     z1, thr1, _, _, glob1 = primary_check
@@ -825,8 +785,8 @@ def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes
     if joint:  # on top of the verdict's cable law only
         config = replace(config, laws=(next(iter(primary_fits.values()))["law"],))
     jobs = []
-    for e, s in zip(candidates, ss.spawn(len(candidates))):
-        jobs += _jobs(primary, (e,), damper, bench, tests, s, config, prior_path)
+    for e in candidates:
+        jobs += _jobs(primary, (e,), damper, bench, tests, seed, config, prior_path)
     fits = _run_fits(jobs, config, label(f"secondary: {len(candidates)} candidate(s)"))
     fits.update({k: v for k, v in primary_fits.items()})
     ranking, summaries, checks, kept, _ = _compare(candidates, lambda e: _name(primary, (e,)), fits, primary_check,

@@ -55,7 +55,7 @@ def run_dir(out, damper: str, test: str, paramset: str) -> Path:
     return Path(out) / damper / test / paramset
 
 
-def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict):
+def to_inference_data(result, like, *, runs, removed_runs, seed: int, seed_key: str, rng, meta: dict):
     """Pack a :class:`sbcal.sampler.SampleResult` and its likelihood into InferenceData.
 
     Parameters
@@ -69,12 +69,16 @@ def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict
     removed_runs : sequence of int
         Outlier runs removed before fitting.
     seed : int
+        The user's seed.
+    seed_key : str
+        The job's key under it (:func:`sbcal.seeds.seed_key`).
+    rng : numpy.random.Generator
+        The stream of the posterior-predictive draws (the job's own).
     meta : dict
         Anything JSON-serialisable to keep (damper, test, config, command line ...).
     """
     n_chain, n_draw = result.log_prob.shape
     params = result.flat()
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))  # own stream: predictive draws
     pred = like.predictive(params, rng).reshape(2, n_chain, n_draw, -1).astype(np.float32)
     model = like.predict(params).reshape(2, n_chain, n_draw, -1).astype(np.float32)
     runs = np.asarray(runs, dtype=int)
@@ -82,6 +86,7 @@ def to_inference_data(result, like, *, runs, removed_runs, seed: int, meta: dict
     attrs = {
         "sbcal_config": json.dumps(meta, sort_keys=True),
         "seed": int(seed),
+        "seed_key": seed_key,
         "versions": json.dumps(versions(), sort_keys=True),
         "removed_runs": json.dumps([int(r) for r in removed_runs]),
         "convergence": json.dumps(result.convergence_dict(), sort_keys=True),
@@ -129,6 +134,7 @@ def summarize(idata, result, *, point_fit: dict | None = None) -> dict:
         "acceptance": float(np.mean(result.acceptance)),
         "wall_s": float(result.wall_s),
         "seed": int(idata.posterior.attrs["seed"]),
+        "seed_key": idata.posterior.attrs["seed_key"],
         **result.convergence_dict(),
         "n_draws": int(result.log_prob.size),
         "removed_runs": json.loads(idata.posterior.attrs["removed_runs"]),
