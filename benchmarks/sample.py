@@ -7,7 +7,7 @@ Usage: python benchmarks/sample.py [--test 0.5-0.5] [--damper damper1] [--seed 1
     ``ga``), run to MATLAB ``ga``'s own stopping rule: stop when the relative change of the best
     fitness over the last 50 generations, ``|f(g-50) - f(g)| / (50 max(1, |f(g)|))``, is at most
     FunctionTolerance 1e-6 (ga's default "totalChange" stall test), or after 500 generations.
-(b) Our vectorised point fit (sbcal.ga.fit_ga, the same search on the vectorised model), population
+(b) Our vectorised point fit (sbcal.point_fit.fit_thesis_cost, the same search on the vectorised model), population
     500, stopped by the same rule.
 (c) The full posterior: sbcal.sampler.sample with the default configuration (the convergence policy:
     4 ensembles, R-hat <= 1.01, bulk and tail ESS >= 400, >= 50 autocorrelation times), on 2 cores.
@@ -27,7 +27,7 @@ from scipy.optimize import differential_evolution  # noqa: E402
 from sbcal.bench import default_bench_path, load_bench  # noqa: E402
 from sbcal.calibrate import test_likelihood  # noqa: E402
 from sbcal.damper import resolve_damper  # noqa: E402
-from sbcal.ga import fit_ga  # noqa: E402
+from sbcal.point_fit import fit_thesis_cost  # noqa: E402
 from sbcal.reference import dynamic_stiffness_loop  # noqa: E402
 from sbcal.sampler import sample  # noqa: E402
 
@@ -96,8 +96,8 @@ def main():
     t_c = float(np.median(t_c_runs))
 
     stall = MatlabStall()
-    fit = fit_ga(like, seed=args.seed, population=POPULATION, generations=MAX_GENERATIONS, tol=0, polish=False,
-                 callback=stall)
+    fit = fit_thesis_cost(like, seed=args.seed, population=POPULATION, generations=MAX_GENERATIONS, tol=0,
+                          polish=False, callback=stall)
     print(f"(b) vectorised point fit, population {POPULATION}, MATLAB stall rule: {fit.wall_s:.2f} s, "
           f"{fit.generations} generations, {fit.n_evaluations} evaluations, cost {fit.cost:.5g}; "
           + ", ".join(f"{n}={v:.4g}" for n, v in zip(fit.names, fit.x)))

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .plotting import pyplot, save_png
 from .errors import InputError
 from .priors import Prior
 from .runs import posterior_draws
@@ -354,12 +355,7 @@ def law_curve(law: str, draws: dict, a) -> np.ndarray:
 def plot_map(docs: dict, path) -> None:
     """EJ and beta versus amplitude for every damper (maps as :func:`stored_maps` gives them), with the
     power law's 90 % band; a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ._io import atomic_path
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     grid = np.geomspace(0.08, 2.5, 100)
@@ -391,9 +387,7 @@ def plot_map(docs: dict, path) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def _per_test(name: str, test: str) -> str:

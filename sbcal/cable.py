@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .damper import Damper
+from .damper import GEOMETRY, Damper
 from .errors import InputError
 from .hysteresis import HysteresisLaw
 
@@ -59,7 +59,6 @@ DEFAULT_SECTIONS = 8
 DEFAULT_N_ELEMENTS = 6
 """Elements per arm of :class:`ElementCableModel` (the convergence study of ``docs/cable.md``)."""
 
-_GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
 _BASE = ("EJ_min", "beta_material", "rocking_rad_per_m")
 _FD_LOG_STEP = 1e-6  # forward-difference step of the law's slope in ln chi
 _MAX_LOG_STEP = 2.0  # element model: Newton step cap in ln chi (a factor e^2 per iteration)
@@ -98,7 +97,7 @@ def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
             raise InputError(f"parameter {name!r}: expected a scalar or shape (n_sets,), got shape {a.shape}")
         n_sets = max(n_sets, a.size) if a.ndim == 1 else n_sets
         out[name] = a.reshape(-1)
-    for name in _GEOMETRY:
+    for name in GEOMETRY:
         out.setdefault(name, np.array([getattr(damper, name)]))
     out.setdefault("rocking_rad_per_m", np.zeros(1))
     return out, n_sets
@@ -523,7 +522,7 @@ class CableModel:
     def parameter_names(self) -> tuple:
         """Every parameter name :meth:`state` accepts."""
         law = self.law.parameter_names if self.law is not None else ()
-        return _BASE[:2] + law + _BASE[2:] + _GEOMETRY
+        return _BASE[:2] + law + _BASE[2:] + GEOMETRY
 
     # --- set-up -------------------------------------------------------------------------------
 
@@ -1161,12 +1160,12 @@ class ElementCableModel:
     def parameter_names(self) -> tuple:
         """Every parameter name :meth:`state` accepts."""
         law = self.law.parameter_names if self.law is not None else ()
-        return _BASE[:2] + law + _BASE[2:] + _GEOMETRY
+        return _BASE[:2] + law + _BASE[2:] + GEOMETRY
 
     # --- set-up -------------------------------------------------------------------------------
 
     def _batch(self, p: dict, n_sets: int, omega, x0) -> _Batch:
-        n, nf = int(self.n_elements), omega.size
+        nf = omega.size
 
         def full(per_set_arm):
             """(n_sets or 1, 2) -> (S, F, 2) broadcast, flattened to (B,)."""

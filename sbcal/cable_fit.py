@@ -20,7 +20,6 @@ Stored as ``<runs>/<damper>/cable-<state>/posterior.nc`` + ``summary.json`` (:fu
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,27 +33,19 @@ from .calibrate import likelihood_for
 from .damper import Damper
 from .errors import InputError
 from .hysteresis import FITTED_LAWS, law_for
+from .labels import cable_state
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
 from .seeds import job_seed, seed_key
 from .stats import elpd_difference, loo
 
-__all__ = ["SECONDARY", "cable_state", "state_tests", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
+__all__ = ["SECONDARY", "state_tests", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
            "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
 their parameters."""
-
-_LABEL = re.compile(r"^\d+(?:\.\d+)?-\d+(?:\.\d+)?(?:-(.+))?$")
-
-
-def cable_state(test: str) -> str:
-    """The cable state of a test label: its suffix after the amplitudes, ``dry`` without one."""
-    m = _LABEL.match(test)
-    return (m.group(1) or "dry") if m else test
-
 
 def state_tests(tests) -> dict:
     """``{state: [tests]}`` in the order the tests come."""

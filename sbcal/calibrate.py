@@ -11,7 +11,7 @@ import numpy as np
 
 from .bench import DEFAULT_Z_THRESHOLD, noise_model, remove_outlier_runs
 from .damper import Damper
-from .ga import fit_ga
+from .point_fit import fit_thesis_cost
 from .likelihood import TestLikelihood
 from .priors import load_prior
 from .runs import run_dir, summarize, to_inference_data, versions, write_run
@@ -88,8 +88,8 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     label = f"{damper.name}/{test}/{paramset}"
     key = ("sample", damper.name, test)
     s_point, s_sample, s_predictive = job_seed(seed, *key).spawn(3)
-    point = fit_ga(like, seed=np.random.default_rng(s_point), population=POINT_FIT_POPULATION,
-                   generations=POINT_FIT_GENERATIONS)
+    point = fit_thesis_cost(like, seed=np.random.default_rng(s_point), population=POINT_FIT_POPULATION,
+                            generations=POINT_FIT_GENERATIONS)
     result = sample(like, seed=s_sample, config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
             "bench": bench.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
@@ -108,8 +108,8 @@ def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     """The thesis's workflow (GA point fit, here differential evolution) on one test; writes ``ga.json``."""
     like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path)
     key = ("point_fit", damper.name, test)
-    fit = fit_ga(like, seed=np.random.default_rng(job_seed(seed, *key)), population=population,
-                 generations=generations)
+    fit = fit_thesis_cost(like, seed=np.random.default_rng(job_seed(seed, *key)), population=population,
+                          generations=generations)
     doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed, "seed_key": seed_key(*key),
            "removed_runs": list(cleaned.removed_runs), "versions": versions(), **fit.as_dict()}
     path = run_dir(out, damper.name, test, paramset) / "ga.json"

@@ -7,7 +7,6 @@ ends in one line on stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import sys
 
@@ -15,7 +14,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError
-from .workers import one_blas_thread
+from .workers import default_workers, one_blas_thread
 
 __all__ = ["main"]
 
@@ -103,7 +102,7 @@ def _bench_options(p, what="bench file"):
 
 
 def _workers_option(p, what):
-    p.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), metavar="N",
+    p.add_argument("--workers", type=int, default=default_workers(), metavar="N",
                    help=f"{what} (default: 2 or the cores there are)")
 
 
@@ -127,8 +126,10 @@ def _add_sample(sub):
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
     p.add_argument("--priors", "--prior", dest="priors", metavar="PATH",
                    help="prior file (default: the bundled priors/default.toml)")
-    p.add_argument("--method", choices=("bayes", "ga"), default="bayes",
-                   help="bayes: emcee posterior (default); ga: the thesis's point fit only (baseline)")
+    p.add_argument("--method", choices=("bayes", "point", "ga"), default="bayes",
+                   help="bayes: the posterior (default); point: the thesis's point fit only, its cost minimised by "
+                        "differential evolution (the baseline; 'ga' is the same, named after the thesis's "
+                        "genetic algorithm)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--out", default="runs", metavar="DIR", help="run store (default runs/)")
     _scale_options(p, "tests in parallel processes")
@@ -181,7 +182,7 @@ def _cmd_sample(args) -> int:
     for t in tests:
         bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
     settings = _settings(args)
-    if args.method == "ga":
+    if args.method in ("point", "ga"):
         for t in tests:
             doc = point_fit_test(damper, bench, t, paramset=args.params, seed=args.seed, out=args.out,
                                  prior_path=args.priors)

@@ -15,8 +15,13 @@ from pathlib import Path
 from ._io import read_toml
 from .errors import InputError
 
-__all__ = ["Damper", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
+__all__ = ["Damper", "GEOMETRY", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
            "DEFAULT_TOLERANCE_PCT", "with_value"]
+
+GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
+"""The damper's model geometry by name: masses [kg], inertias [kg m^2], offsets [m] of mass 1, mass 2
+and the clamp, arm lengths [m] and the cable's mass per length [kg/m] (the fields of :class:`Damper`
+that the forward models read, and that a parameter set may override)."""
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,6 @@ model it and show the fit improve (``docs/diagnose.md``).
 
 from __future__ import annotations
 
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
@@ -33,7 +32,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from scipy import stats
 
-from .bench import remove_outlier_runs, rows_digest
+from .bench import DEFAULT_Z_THRESHOLD, remove_outlier_runs, rows_digest
 from .cable_fit import (SECONDARY, CableFit, cable_config, cable_likelihood, cable_seed, compare_families, compared_laws,
                         sample_cable, state_tests, store_cable)
 from .calibrate import likelihood_for
@@ -49,7 +48,7 @@ from .runs import versions
 from .sampler import SamplerConfig, sample
 from .seeds import job_seed
 from .stats import elpd_difference, loo
-from .workers import one_blas_thread
+from .workers import default_workers, one_blas_thread
 
 __all__ = ["DiagnoseConfig", "diagnose", "curves_frame"]
 
@@ -91,6 +90,9 @@ class DiagnoseConfig:
         else are the engine's: :data:`sbcal.sampler.POLICY`).
     workers : int
         Processes: fits run in parallel, one per process.
+    z_threshold : float
+        Outlier-run threshold of the cleaning (:func:`sbcal.bench.remove_outlier_runs`); the pipeline
+        sets it from its own settings, so every stage cleans alike.
     """
 
     alpha: float = 0.05
@@ -105,7 +107,8 @@ class DiagnoseConfig:
     draws: int = 250
     max_steps: int = 20000
     cable_max_steps: int = 8000
-    workers: int = field(default_factory=lambda: min(2, os.cpu_count() or 1))
+    workers: int = field(default_factory=default_workers)
+    z_threshold: float = DEFAULT_Z_THRESHOLD
 
     def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
         if joint:  # the cable fit's own settings, capped as here
@@ -141,13 +144,14 @@ def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) ->
     if primary == "strand_slip":
         for state, members in sorted(state_tests(tests).items()):
             for law in compared_laws(config.laws, tests):
-                like = cable_likelihood(damper, bench, members, law, effects=secondary, prior_path=prior_path)
+                like = cable_likelihood(damper, bench, members, law, effects=secondary, prior_path=prior_path,
+                                        z_threshold=config.z_threshold)
                 jobs.append(((name, state, law), like, cable_seed(seed, damper.name, state, law, tuple(secondary))))
     else:
         prior = _per_test_prior(primary, secondary, damper, prior_path)
         model = model_for(primary, secondary)
         for t in tests:
-            data = remove_outlier_runs(bench.test(damper.name, t)).data
+            data = remove_outlier_runs(bench.test(damper.name, t), config.z_threshold).data
             jobs.append(((name, t), likelihood_for(damper, data, prior, model=model),
                          job_seed(seed, "diagnose", damper.name, name, t)))
     return [(key, target, s, config) for key, target, s in jobs]

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .damper import Damper
+from .damper import GEOMETRY, Damper
 from .errors import InputError
 
 __all__ = [
@@ -56,9 +56,8 @@ __all__ = [
     "ArmKernel",
 ]
 
-_GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
 _POLY = ("q1", "q2", "q3", "q4", "q5")
-PARAMETER_NAMES = ("EJ", "beta", "beta1", "beta2") + _POLY + _GEOMETRY
+PARAMETER_NAMES = ("EJ", "beta", "beta1", "beta2") + _POLY + GEOMETRY
 """The public parameter vocabulary shared by the model, the priors, the CLI and the reports."""
 
 STANDARD_GRID_HZ = np.concatenate(
@@ -87,7 +86,7 @@ def _resolve(damper: Damper, params: dict) -> tuple[dict, int]:
                 raise InputError(f"parameter {name!r}: {a.size} sets where others have {n_sets}")
             n_sets = max(n_sets, a.size)
         out[name] = a.reshape(-1, 1)
-    for name in _GEOMETRY:
+    for name in GEOMETRY:
         out.setdefault(name, np.full((1, 1), getattr(damper, name)))
     return out, n_sets
 
@@ -280,12 +279,12 @@ def _prepare_arms(damper, freq_hz, arms, geometry):
     """Validate per-arm per-line values and geometry overrides.
 
     ``arms`` maps names to values that are scalars or 2-D arrays broadcastable to
-    ``(n_sets, n_freq)``; ``geometry`` holds :data:`_GEOMETRY` overrides (scalar or ``(n_sets,)``).
+    ``(n_sets, n_freq)``; ``geometry`` holds :data:`GEOMETRY` overrides (scalar or ``(n_sets,)``).
     Returns ``(p, n_sets, omega, values)`` with ``values`` a list of 2-D arrays.
     """
-    not_geometry = sorted(set(geometry) - set(_GEOMETRY))
+    not_geometry = sorted(set(geometry) - set(GEOMETRY))
     if not_geometry:
-        raise InputError(f"unknown geometry parameter {not_geometry[0]!r}; known: {', '.join(_GEOMETRY)}")
+        raise InputError(f"unknown geometry parameter {not_geometry[0]!r}; known: {', '.join(GEOMETRY)}")
     p, n_sets = _resolve(damper, geometry)
     f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
     if f.ndim != 1:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -35,7 +34,7 @@ from .bench import DEFAULT_Z_THRESHOLD, bench_summary, quality_table, rows_diges
 from .damper import Damper
 from .errors import InputError
 from .progress import progress_bar
-from .workers import one_blas_thread
+from .workers import default_workers, one_blas_thread
 
 __all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "sample_inputs",
            "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run", "STAGES"]
@@ -67,7 +66,7 @@ class Settings:
     sampler: object = None
     diagnose: object = None
     z_threshold: float = DEFAULT_Z_THRESHOLD
-    workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
+    workers: int = field(default_factory=default_workers)
 
     def __post_init__(self):
         from .diagnose import DiagnoseConfig
@@ -77,6 +76,8 @@ class Settings:
             object.__setattr__(self, "sampler", SamplerConfig())
         if self.diagnose is None:
             object.__setattr__(self, "diagnose", DiagnoseConfig())
+        # one threshold for every stage's cleaning: the diagnosis cleans as the sample stage does
+        object.__setattr__(self, "diagnose", replace(self.diagnose, z_threshold=self.z_threshold))
 
 
 # --- digests -------------------------------------------------------------------------------

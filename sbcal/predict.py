@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,9 +56,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .plotting import pyplot, save_png
 from ._io import atomic_path, write_json
-from .damper import FILE_KEYS, Damper, resolve_damper, with_value
+from .damper import FILE_KEYS, GEOMETRY, Damper, resolve_damper, with_value
 from .errors import InputError
+from .labels import parse_label
 
 __all__ = [
     "QUANTILES",
@@ -106,7 +107,6 @@ PROMINENCE = 0.05
 
 _CHUNK = 40_000  # (set, line) pairs per cable-model call: bounds the solver's scratch memory
 _MODES = {"amplitude": "amplitude_mm_pp", "velocity": "velocity_m_s"}
-_LABEL = re.compile(r"^(\d+(?:\.\d+)?)-(\d+(?:\.\d+)?)(?:-(.+))?$")
 _EFFECT_PARAMS = ("delay_s", "fixture_mass_kg", "rocking_rad_per_m")
 
 
@@ -156,9 +156,9 @@ class CableRun:
         """The amplitudes [mm p-p] of the calibration's constant-amplitude tests (``A-A``), sorted."""
         out = set()
         for t in self.summary.get("tests", []):
-            m = _LABEL.match(str(t))
-            if m and float(m.group(1)) == float(m.group(2)):
-                out.add(float(m.group(1)))
+            p = parse_label(t)
+            if p and p.constant:
+                out.add(p.below_mm_pp)
         return sorted(out)
 
     def convergence_warning(self) -> str:
@@ -233,14 +233,11 @@ def load_cable_run(run) -> CableRun:
                     law=law, calibration=calibration, curvature_range=rng)
 
 
-_GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
-
-
 def _is_calibration_damper(cable: CableRun, damper: Damper) -> bool:
     c = cable.calibration
     if c is None or c.name != damper.name:
         return False
-    return all(np.isclose(getattr(c, k), getattr(damper, k), rtol=1e-12, atol=0.0) for k in _GEOMETRY)
+    return all(np.isclose(getattr(c, k), getattr(damper, k), rtol=1e-12, atol=0.0) for k in GEOMETRY)
 
 
 # --- the draws -------------------------------------------------------------------------------------
@@ -1113,21 +1110,8 @@ def stored_predictions(damper_dir) -> list:
 
 # --- figures -----------------------------------------------------------------------------------------
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig, path) -> Path:
-    path = Path(path)
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    _plt().close(fig)
-    return path
+    return save_png(fig, path, dpi=90)
 
 
 def _spans(f, mask):
@@ -1149,7 +1133,7 @@ def plot_prediction(pred: Prediction, path, *, observed: dict | None = None) -> 
     """Magnitude, phase and dissipated power per condition: median, 90 % band, resonances (triangles
     with their 90 % range), extrapolated lines shaded (hatched). ``observed``: ``{level: (freq_hz,
     stiffness_n_per_m, phase_deg)}`` recorded run means to overlay."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
     unit = "mm p-p" if pred.mode == "amplitude" else "m/s"
     f = pred.freq_hz
@@ -1193,7 +1177,7 @@ def plot_prediction(pred: Prediction, path, *, observed: dict | None = None) -> 
 def plot_sweep(result: SweepResult, path) -> Path:
     """Resonance frequencies (top) and peak dissipated power (bottom) against the design value, median
     and 90 % band per condition; values whose band bends the arms beyond the calibration hatched."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     x = result.values
     unit = "mm p-p" if result.mode == "amplitude" else "m/s"

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .damper import Damper
+from .damper import GEOMETRY, Damper
 
 __all__ = ["dynamic_stiffness_loop"]
 
@@ -56,7 +56,7 @@ def dynamic_stiffness_loop(
     -------
     ndarray, complex, shape (n_freq,) or (n_freq, 2, 2)
     """
-    g = {k: getattr(damper, k) for k in ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")}
+    g = {k: getattr(damper, k) for k in GEOMETRY}
     g.update(geometry)
     l1, l2, mu = g["L1"], g["L2"], g["mu"]
     ej0 = damper.ej_static if EJ is None else EJ

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .plotting import pyplot, save_png
 from ._io import atomic_path
 from .errors import InputError
 from .sampler import POLICY
@@ -26,20 +27,8 @@ __all__ = ["build_report"]
 _FIG_DPI = 90
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig, path: Path) -> str:
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=_FIG_DPI, format="png")
-    _plt().close(fig)
-    return path.name
+    return save_png(fig, path, dpi=_FIG_DPI).name
 
 
 @dataclass
@@ -54,7 +43,7 @@ class _Test:
 
 def _fit_figure(idata, path: Path, title: str) -> str:
     """Measured runs, their mean, the model's 90 % band and the predictive 90 % band for a new run."""
-    plt = _plt()
+    plt = pyplot()
     f = np.asarray(idata.constant_data["freq_hz"])
     obs_m = np.exp(np.asarray(idata.observed_data["logmag"]))
     obs_p = np.degrees(np.asarray(idata.observed_data["phase"]))
@@ -86,7 +75,7 @@ def _fit_figure(idata, path: Path, title: str) -> str:
 
 def _power_figure(idata, path: Path, title: str) -> str:
     """Dissipated power P = 0.5 omega Im(f_uu) X0^2 of the model curves, with its 90 % band."""
-    plt = _plt()
+    plt = pyplot()
     f = np.asarray(idata.constant_data["freq_hz"])
     x0 = np.asarray(idata.constant_data["amplitude_mm_pp"]) / 2 * 1e-3  # peak base amplitude [m]
     pp = idata.posterior_predictive
@@ -118,7 +107,7 @@ def _corner_figure(idata, names, path: Path) -> str:
 
 def _trace_figure(idata, names, path: Path) -> str:
     """Draws per ensemble (chain): well-mixed ensembles overlap."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.2 * len(names) + 0.5), sharex=True)
     for ax, n in zip(np.atleast_1d(axes), names):
         v = np.asarray(idata.posterior[n])
@@ -132,7 +121,7 @@ def _trace_figure(idata, names, path: Path) -> str:
 
 def _cv_figure(quality: dict, path: Path) -> str:
     """CV per line of every test, from the stored cleaning stage (``data.json``'s ``quality``)."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
     for t, q in quality.items():
         axes[0].plot(q["frequency_hz"], q["magnitude_cv"], lw=1, label=t)
@@ -148,7 +137,7 @@ def _cv_figure(quality: dict, path: Path) -> str:
 
 def _diagnosis_figure(doc, path: Path) -> str:
     """Standardised residuals of every test (rows) before (grey) and after (red) the chosen extension."""
-    plt = _plt()
+    plt = pyplot()
     res = doc["residuals"]
     tests = list(res)
     fig, axes = plt.subplots(len(tests), 2, figsize=(10, 1.5 * len(tests) + 1.0), sharex=True, squeeze=False)
@@ -183,7 +172,7 @@ def _law_figure(cables: dict, path: Path) -> str:
     band, with the curvature range each test reached."""
     from .cable_fit import law_curves
 
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for i, (state, (summary, draws)) in enumerate(sorted(cables.items())):
         color = f"C{i % 10}"
@@ -216,7 +205,7 @@ def _law_figure(cables: dict, path: Path) -> str:
 
 def _curves_figure(doc, path: Path) -> str:
     """Each test's run means with the per-test model's and the verdict model's fitted curves."""
-    plt = _plt()
+    plt = pyplot()
     curves = doc.get("curves", {})
     base = curves.get("baseline", {})
     model = doc["after"]["effect"]

@@ -41,7 +41,6 @@ Steps:
 from __future__ import annotations
 
 import math
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -52,7 +51,7 @@ from scipy.optimize import differential_evolution, minimize
 
 from .progress import progress_bar
 from .stats import convergence
-from .workers import one_blas_thread
+from .workers import default_workers, one_blas_thread
 
 __all__ = ["POLICY", "SamplerConfig", "SampleResult", "sample"]
 
@@ -106,7 +105,7 @@ class SamplerConfig:
     max_draws: int = 1000
     de_population: int = 48
     de_generations: int = 150
-    workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
+    workers: int = field(default_factory=default_workers)
     independence: float = 0.5
 
     def __post_init__(self):

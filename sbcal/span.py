@@ -29,10 +29,12 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import elementwise
 
+from .plotting import pyplot, save_png
 from .conductor import WIND_CURVES, Conductor
 from .damper import Damper
 from .errors import InputError
 from .fem import dynamic_stiffness
+from .labels import parse_label
 
 __all__ = [
     "Impedance",
@@ -829,13 +831,7 @@ def optimise_position(conductor: Conductor, impedance: Impedance, positions_m=No
 def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -> None:
     """Y_max/D and stress against frequency with and without the dampers, the powers, and (with
     ``placement``) the margin against position; one PNG written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ._io import atomic_path
-
+    plt = pyplot()
     r, d = result, result.conductor.diameter_m
     f = r.freq_hz
     n = 4 if placement is not None else 3
@@ -882,9 +878,7 @@ def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -897,7 +891,6 @@ AMPLITUDE_MARGIN = 0.10
 """A damper's clamp amplitude counts as beyond the calibration when it exceeds the largest amplitude
 of the cable run's tests by more than this fraction (the law is extrapolated there: a warning)."""
 
-_TEST_AMPLITUDES = re.compile(r"^(\d+(?:\.\d+)?)-(\d+(?:\.\d+)?)")  # bench test labels "A-B[-state]"
 _NO_DAMPER = ("none", "")
 
 
@@ -1002,8 +995,8 @@ def _damper_source(damper, cable):
 
 def _calibrated_amplitudes(run) -> tuple:
     """(least, largest) amplitude [mm p-p] of a cable run's tests, from their labels ``A-B``."""
-    matches = (_TEST_AMPLITUDES.match(str(t)) for t in run.summary.get("tests", []))
-    amps = [float(x) for m in matches if m for x in m.groups()]
+    labels = (parse_label(t) for t in run.summary.get("tests", []))
+    amps = [a for p in labels if p for a in p.amplitudes]
     return (min(amps), max(amps)) if amps else ()
 
 

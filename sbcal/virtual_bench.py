@@ -35,7 +35,6 @@ frequency grid as a stepped-sine controller does (``docs/virtual_bench.md``, ``d
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -47,6 +46,7 @@ from .errors import InputError
 from .cable import ElementCableModel
 from .fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
 from .hysteresis import law_for
+from .labels import parse_label
 
 __all__ = [
     "EFFECTS",
@@ -387,9 +387,6 @@ class BenchConfig:
 
 # --- tests and amplitudes ----------------------------------------------------------------------
 
-_LABEL = re.compile(r"^(\d+(?:\.\d+)?)-(\d+(?:\.\d+)?)(?:-[A-Za-z0-9_]+)?$")
-
-
 def test_amplitude(label: str, freq_hz) -> np.ndarray:
     """Commanded amplitude per line of a test [mm p-p].
 
@@ -400,11 +397,11 @@ def test_amplitude(label: str, freq_hz) -> np.ndarray:
     -------
     ndarray, shape (n_freq,)
     """
-    m = _LABEL.match(str(label))
-    if not m or float(m.group(1)) <= 0 or float(m.group(2)) <= 0:
+    p = parse_label(label)
+    if not p or p.below_mm_pp <= 0 or p.above_mm_pp <= 0:
         raise InputError(f"test {label!r}: expected A-B[-suffix] with amplitudes A, B > 0 in mm p-p (e.g. 0.5-0.5, 2-1)")
     f = np.asarray(freq_hz, dtype=float)
-    return np.where(f <= STEP_HZ, float(m.group(1)), float(m.group(2)))
+    return np.where(f <= STEP_HZ, p.below_mm_pp, p.above_mm_pp)
 test_amplitude.__test__ = False  # not a pytest test
 
 

@@ -14,9 +14,17 @@ so it cannot be set from inside a running process.
 
 from __future__ import annotations
 
+import os
+
 from threadpoolctl import threadpool_limits
 
-__all__ = ["one_blas_thread"]
+__all__ = ["one_blas_thread", "default_workers"]
+
+
+def default_workers() -> int:
+    """Processes a stage uses unless told: one per core, at most 2 (the engine's ensembles and the
+    pipeline's jobs scale no further on the machines sbcal is measured on; ``--workers`` raises it)."""
+    return max(1, min(2, os.cpu_count() or 1))
 
 
 def one_blas_thread():

@@ -262,3 +262,28 @@ def test_each_tests_own_delay_of_a_joint_fit(damper, small_bench):
     assert v["scale_factor"] == pytest.approx(factor)
     assert v["q95"] - v["median"] == pytest.approx(1.645 * factor * draws["delay_s"].std(), rel=1e-6)
     assert f"widened {factor:.1f}x" in out["words"]
+
+
+def test_diagnose_cleans_with_the_pipelines_threshold(tmp_path):
+    """The diagnosis removes outlier runs by the run's own threshold (``Settings.z_threshold``), not its own."""
+    import pandas as pd
+
+    from sbcal.bench import curves_to_frame
+    from sbcal.diagnose import _jobs
+    from sbcal.pipeline import Settings
+
+    d = resolve_damper("damper1")
+    rng = np.random.default_rng(5)
+    fuu = dynamic_stiffness(d, F, EJ=12.0, beta=0.3)
+    runs = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
+    runs[2] *= 1.6  # one run 60 % off: an outlier at the default threshold
+    frames = [curves_to_frame("damper1", t, F, a, runs) for t, a in (("0.5-0.5", 0.5), ("1-1", 1.0))]
+    write_bench(pd.concat(frames, ignore_index=True), tmp_path / "b.csv")
+    bench = load_bench(tmp_path / "b.csv")
+    assert remove_outlier_runs(bench.test("damper1", "0.5-0.5")).removed_runs == (3,)
+    for z, kept in ((None, 5), (1e9, 6)):
+        config = DiagnoseConfig() if z is None else Settings(z_threshold=z).diagnose
+        for primary in ("baseline", "strand_slip"):
+            for job in _jobs(primary, (), d, bench, ["0.5-0.5", "1-1"], 0, config, None):
+                likes = job[1].likes if isinstance(job[1], JointLikelihood) else [job[1]]
+                assert [lk.y.shape[1] for lk in likes] == [kept] * len(likes), (z, primary)

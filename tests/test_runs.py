@@ -87,11 +87,17 @@ def test_sample_cli_errors(bench, tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-def test_ga_method_writes_point_fit(bench, tmp_path, capsys):
-    assert main(["sample", "--test", "0.5-0.5", "--method", "ga", "--bench", bench.source, "--out", str(tmp_path),
-                 "--seed", "2"]) == 0
-    doc = json.loads((tmp_path / "damper1" / "0.5-0.5" / "theta1" / "ga.json").read_text())
+def test_point_method_writes_point_fit_and_ga_is_its_alias(bench, tmp_path, capsys):
+    docs = []
+    for method in ("point", "ga"):
+        out = tmp_path / method
+        assert main(["sample", "--test", "0.5-0.5", "--method", method, "--bench", bench.source, "--out", str(out),
+                     "--seed", "2"]) == 0
+        docs.append(json.loads((out / "damper1" / "0.5-0.5" / "theta1" / "ga.json").read_text()))
+    doc = docs[0]
     assert abs(doc["parameters"]["EJ"] - 10.0) < 1.0 and doc["seed"] == 2
+    assert doc["seed_key"] == "point_fit/damper1/0.5-0.5"
+    assert docs[1]["parameters"] == doc["parameters"]  # the same job under its old name
 
 
 def test_loo_falls_back_where_pareto_smoothing_fails(monkeypatch):

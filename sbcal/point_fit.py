@@ -2,7 +2,7 @@
 
 The thesis used MATLAB's genetic algorithm (population 500, up to 500 generations). Here scipy's
 differential evolution, a well-kept evolutionary optimiser, stands in for it, vectorised over the
-population. It is the baseline users can compare with (``sbcal sample --method ga``, and ``ga`` in
+population. It is the baseline users can compare with (``sbcal sample --method point``, alias ``ga``, and ``ga`` in
 every run's ``summary.json``): one number per parameter, no uncertainty.
 """
 
@@ -16,12 +16,12 @@ from scipy.optimize import differential_evolution
 
 from .likelihood import TestLikelihood
 
-__all__ = ["PointFit", "fit_ga"]
+__all__ = ["PointFit", "fit_thesis_cost"]
 
 
 @dataclass(frozen=True)
 class PointFit:
-    """Result of :func:`fit_ga`.
+    """Result of :func:`fit_thesis_cost`.
 
     Attributes
     ----------
@@ -49,7 +49,7 @@ class PointFit:
                 "n_evaluations": self.n_evaluations, "generations": self.generations, "wall_s": self.wall_s}
 
 
-def fit_ga(like: TestLikelihood, *, seed, population: int = 60, generations: int = 300, tol: float = 1e-6,
+def fit_thesis_cost(like: TestLikelihood, *, seed, population: int = 60, generations: int = 300, tol: float = 1e-6,
            polish: bool = True, callback=None) -> PointFit:
     """Minimise the thesis's cost (Eq. 4.5) over the prior box of the model parameters.
 
