@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sbcal.damper import Damper
-from sbcal.fem import arm_impedance, arm_kernel
+from sbcal.model.damper import Damper
+from sbcal.model.fem import arm_impedance, arm_kernel
 
 _SLIP_ITERATIONS = 12
 _GEOMETRY = ("a1", "a2")

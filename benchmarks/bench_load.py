@@ -4,7 +4,7 @@ Usage: python benchmarks/bench_load.py [--rows 100000] [--repeat 5] [--seed 0]
 
 Writes a synthetic bench CSV of about ``--rows`` rows (10 dampers x the 9 thesis tests x N runs x
 the 37 standard lines, a few planted outlier runs) to a temporary directory, then times
-:func:`sbcal.bench.load_bench` alone and the whole per-test pipeline for every test, and, as a
+:func:`sbcal.data.readers.load_bench` alone and the whole per-test pipeline for every test, and, as a
 baseline measured in the same run, a bare ``pandas.read_csv`` of the same file. Prints rows/s,
 the ratio to the baseline and the pipeline's peak traced memory (tracemalloc, a separate pass).
 """
@@ -19,9 +19,11 @@ import numpy as np
 import pandas as pd
 
 from sbcal import STANDARD_GRID_HZ, dynamic_stiffness
-from sbcal.bench import (THESIS_TESTS, curves_to_frame, load_bench, noise_model, quality_table,
-                         remove_outlier_runs, write_bench)
-from sbcal.damper import resolve_damper
+from sbcal.data.bench import THESIS_TESTS, curves_to_frame, write_bench
+from sbcal.data.cleaning import quality_table, remove_outlier_runs
+from sbcal.data.noise import noise_model
+from sbcal.data.readers import load_bench
+from sbcal.model.damper import resolve_damper
 
 from _timing import best_time
 

@@ -2,11 +2,11 @@
 
 Usage: python benchmarks/cable_fit.py [--bench-elements 12] [--data LAW ...] [--families FAMILY ...]
 
-Curves: :class:`sbcal.cable.CableModel` with ``--bench-elements`` elements per arm (richer than the
+Curves: :class:`sbcal.model.cable.CableModel` with ``--bench-elements`` elements per arm (richer than the
 fit's default), at 0.1, 0.2, 0.3, 0.4, 0.5, 1 and 2 mm p-p on the standard grid, on a geometry not
 used in development (masses and arm lengths ~20 % off damper1), made with each law of
 :data:`TRUTH` (the fitted families, their special cases Dahl and Iwan-4, and the bench-only
-lognormal Iwan law). Each fitted family (default :data:`sbcal.hysteresis.FITTED_LAWS`; the fit's
+lognormal Iwan law). Each fitted family (default :data:`sbcal.model.hysteresis.FITTED_LAWS`; the fit's
 default element count) is fitted to all amplitudes jointly by ``scipy.optimize.least_squares`` on
 ln|f| and phase [rad] (parameters EJ_min, beta_material, the law's, a1, a2; scales in logs), from
 three starts (:data:`STARTS`), keeping the best. Prints the rms error per amplitude (magnitude %,
@@ -24,9 +24,9 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from sbcal import STANDARD_GRID_HZ  # noqa: E402
-from sbcal.cable import CableModel  # noqa: E402
-from sbcal.damper import Damper  # noqa: E402
-from sbcal.hysteresis import FITTED_LAWS, law_for  # noqa: E402
+from sbcal.model.cable import CableModel  # noqa: E402
+from sbcal.model.damper import Damper  # noqa: E402
+from sbcal.model.hysteresis import FITTED_LAWS, law_for  # noqa: E402
 
 AMPS = (0.1, 0.2, 0.3, 0.4, 0.5, 1.0, 2.0)
 MAX_NFEV = 200

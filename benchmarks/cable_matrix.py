@@ -33,12 +33,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnose_matrix import STUB  # noqa: E402
 
-from sbcal.bench import load_bench, write_bench  # noqa: E402
-from sbcal.cable_fit import cable_likelihood, read_cable  # noqa: E402
-from sbcal.damper import load_damper  # noqa: E402
-from sbcal.diagnose import DiagnoseConfig, diagnose  # noqa: E402
-from sbcal.hysteresis import FITTED_LAWS  # noqa: E402
-from sbcal.virtual_bench import DEFAULT_TESTS, BenchConfig, SlipLaw, record, response  # noqa: E402
+from sbcal.data.bench import write_bench
+from sbcal.data.readers import load_bench  # noqa: E402
+from sbcal.inference.cable_fit import cable_likelihood, read_cable  # noqa: E402
+from sbcal.model.damper import load_damper  # noqa: E402
+from sbcal.diagnosis.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
+from sbcal.simulate.virtual_bench import DEFAULT_TESTS, BenchConfig, SlipLaw, record, response  # noqa: E402
 
 LAWS = {  # law parameters; delta_EJ as a fraction of ej_static
     "bouc_wen": {"chi_slip": 0.008, "sharpness": 2.0, "delta_EJ": 0.4},

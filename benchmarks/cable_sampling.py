@@ -3,8 +3,8 @@
 Usage: python benchmarks/cable_sampling.py [--dampers damper1 damper2] [--states dry oiled]
                                            [--laws bouc_wen iwan5] [--seed 1] [--workers 2]
 
-Each (damper, cable state, family) is fitted by :func:`sbcal.cable_fit.fit_cable` with its default
-configuration (:func:`sbcal.cable_fit.cable_config`: the engine's convergence policy, 4 ensembles,
+Each (damper, cable state, family) is fitted by :func:`sbcal.inference.cable_fit.fit_cable` with its default
+configuration (:func:`sbcal.inference.cable_fit.cable_config`: the engine's convergence policy, 4 ensembles,
 R-hat <= 1.01, bulk and tail ESS >= 400, >= 50 autocorrelation times; ``--workers`` processes).
 Prints per fit: the wall time (start search + sampling), the CPU time of this process and its
 workers, the load average before and after (other work on the machine lengthens the wall time, not
@@ -23,10 +23,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from sbcal.bench import default_bench_path, load_bench  # noqa: E402
-from sbcal.cable_fit import fit_cable, state_tests  # noqa: E402
-from sbcal.damper import resolve_damper  # noqa: E402
-from sbcal.hysteresis import FITTED_LAWS  # noqa: E402
+from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
+from sbcal.inference.cable_fit import fit_cable, state_tests  # noqa: E402
+from sbcal.model.damper import resolve_damper  # noqa: E402
+from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
 
 
 def cpu_s() -> float:

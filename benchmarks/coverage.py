@@ -5,7 +5,7 @@ Usage: python benchmarks/coverage.py [--datasets 100] [--workers 2] [--seed 2026
 For each data set: draw theta and the model-error scales from the prior, simulate a test (runs =
 model + a discrepancy shared by the runs + run noise largest at 4-15 Hz, on a geometry unlike the
 bundled dampers), and fit it exactly as ``sbcal sample`` does: the pipeline's noise model and
-likelihood (:func:`sbcal.calibrate.likelihood_for` on the runs as :class:`sbcal.bench.TestData`) and
+likelihood (:func:`sbcal.inference.calibrate.likelihood_for` on the runs as :class:`sbcal.data.bench.TestData`) and
 the engine under the convergence policy. Records the rank of the true value among thinned posterior
 draws. Prints, per parameter, the coverage of the central 50 % and 90 % intervals with their binomial
 standard error, and a chi-square test of uniform ranks.
@@ -21,11 +21,11 @@ import numpy as np  # noqa: E402
 from scipy.stats import chisquare  # noqa: E402
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness  # noqa: E402
-from sbcal.bench import TestData  # noqa: E402
-from sbcal.calibrate import likelihood_for  # noqa: E402
-from sbcal.damper import Damper  # noqa: E402
-from sbcal.priors import load_prior  # noqa: E402
-from sbcal.sampler import SamplerConfig, sample  # noqa: E402
+from sbcal.data.bench import TestData  # noqa: E402
+from sbcal.inference.calibrate import likelihood_for  # noqa: E402
+from sbcal.model.damper import Damper  # noqa: E402
+from sbcal.inference.priors import load_prior  # noqa: E402
+from sbcal.inference.sampler import SamplerConfig, sample  # noqa: E402
 
 DAMPER = Damper(name="sbc", m1=2.6, J1=0.012, a1=0.024, m2=2.1, J2=0.007, a2=-0.018, mc=0.9, Jc=0.0012,
                 ac=0.0, L1=0.22, L2=0.17, mu=0.48, ej_static=100.0)

@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sbcal.bench import load_bench, write_bench
-from sbcal.damper import load_damper, resolve_damper
-from sbcal.diagnose import diagnose
-from sbcal.extensions import EXTENSIONS
-from sbcal.virtual_bench import DEFAULT_TESTS, BenchConfig, parse_effect, record
+from sbcal.data.bench import write_bench
+from sbcal.data.readers import load_bench
+from sbcal.model.damper import load_damper, resolve_damper
+from sbcal.diagnosis.diagnose import diagnose
+from sbcal.model.extensions import EXTENSIONS
+from sbcal.simulate.virtual_bench import DEFAULT_TESTS, BenchConfig, parse_effect, record
 
 STUB = """name = "stub"
 description = "A short, heavy damper (not a thesis prototype): the matrix's third geometry"

@@ -3,7 +3,7 @@
 Usage: python benchmarks/forward.py [--sets 4096] [--repeat 20]
 
 Prints lines/s of :func:`sbcal.dynamic_stiffness` for a batch of parameter sets on the standard
-37-line grid, the same for the per-frequency-loop transcription (:mod:`sbcal.reference`) measured
+37-line grid, the same for the per-frequency-loop transcription (:mod:`sbcal.model.reference`) measured
 in the same run on a subset of sets, and their ratio. Targets (issue 2): >= 1e7 lines/s on one
 core and >= 300x the loop.
 """
@@ -16,8 +16,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the target says
 import numpy as np  # noqa: E402
 
 from sbcal import STANDARD_GRID_HZ, dynamic_stiffness  # noqa: E402
-from sbcal.damper import resolve_damper  # noqa: E402
-from sbcal.reference import dynamic_stiffness_loop  # noqa: E402
+from sbcal.model.damper import resolve_damper  # noqa: E402
+from sbcal.model.reference import dynamic_stiffness_loop  # noqa: E402
 
 from _timing import best_time  # noqa: E402
 

@@ -2,14 +2,14 @@
 
 Usage: python benchmarks/sample.py [--test 0.5-0.5] [--damper damper1] [--seed 1] [--bench PATH]
 
-(a) The thesis's workflow: the per-frequency-loop model (Appendix C, sbcal.reference) under a
+(a) The thesis's workflow: the per-frequency-loop model (Appendix C, sbcal.model.reference) under a
     genetic algorithm with population 500 (scipy's differential evolution stands in for MATLAB's
     ``ga``), run to MATLAB ``ga``'s own stopping rule: stop when the relative change of the best
     fitness over the last 50 generations, ``|f(g-50) - f(g)| / (50 max(1, |f(g)|))``, is at most
     FunctionTolerance 1e-6 (ga's default "totalChange" stall test), or after 500 generations.
-(b) Our vectorised point fit (sbcal.point_fit.fit_thesis_cost, the same search on the vectorised model), population
+(b) Our vectorised point fit (sbcal.inference.point_fit.fit_thesis_cost, the same search on the vectorised model), population
     500, stopped by the same rule.
-(c) The full posterior: sbcal.sampler.sample with the default configuration (the convergence policy:
+(c) The full posterior: sbcal.inference.sampler.sample with the default configuration (the convergence policy:
     4 ensembles, R-hat <= 1.01, bulk and tail ESS >= 400, >= 50 autocorrelation times), on 2 cores.
 
 Targets (issue 11, 2-core machine): (c) <= 5 s (goal 3 s), >= 30x faster than (a), within 10x of (b).
@@ -24,12 +24,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy.optimize import differential_evolution  # noqa: E402
 
-from sbcal.bench import default_bench_path, load_bench  # noqa: E402
-from sbcal.calibrate import test_likelihood  # noqa: E402
-from sbcal.damper import resolve_damper  # noqa: E402
-from sbcal.point_fit import fit_thesis_cost  # noqa: E402
-from sbcal.reference import dynamic_stiffness_loop  # noqa: E402
-from sbcal.sampler import sample  # noqa: E402
+from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
+from sbcal.inference.calibrate import test_likelihood  # noqa: E402
+from sbcal.model.damper import resolve_damper  # noqa: E402
+from sbcal.inference.point_fit import fit_thesis_cost  # noqa: E402
+from sbcal.model.reference import dynamic_stiffness_loop  # noqa: E402
+from sbcal.inference.sampler import sample  # noqa: E402
 
 POPULATION, MAX_GENERATIONS, STALL, FUNCTION_TOLERANCE = 500, 500, 50, 1e-6
 

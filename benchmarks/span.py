@@ -5,16 +5,16 @@ Usage: python benchmarks/span.py [--draws 400] [--freq 60] [--positions 40] [--r
 
 Drake (bundled), damper1 through the 6-DOF model with ``--draws`` posterior-like draws of EJ and
 beta, ``--freq`` Strouhal frequencies for 1-7 m/s, 90 % bands. Prints the best wall time of
-:func:`sbcal.span.energy_balance` with the damper beside two baselines measured in the same run:
+:func:`sbcal.design.span.energy_balance` with the damper beside two baselines measured in the same run:
 the same balance without a damper, and one evaluation of the damper's dynamic stiffness over all
-draws and frequencies; then one placement sweep (:func:`sbcal.span.optimise_position`).
+draws and frequencies; then one placement sweep (:func:`sbcal.design.placement.optimise_position`).
 Target (issue): under a minute on 2 cores for the damper case.
 
 With ``--cable RUN`` (a stored cable fit, e.g. ``runs/damper1/cable-dry`` from ``sbcal cable``, or
 ``DIR/runs/damper1/cable-dry`` left by ``benchmarks/transfer.py``) also the case ``sbcal span`` runs:
-:func:`sbcal.span.span_study` with the run's own damper, amplitude-dependent, ``--cable-draws``
+:func:`sbcal.design.span_study.span_study` with the run's own damper, amplitude-dependent, ``--cable-draws``
 posterior draws, the whole band, 90 % bands (reading the run, building the impedance, the balance),
-and the same with the files written (:func:`sbcal.span.store_span`: CSV, JSON, figure), against
+and the same with the files written (:func:`sbcal.design.span_study.store_span`: CSV, JSON, figure), against
 the same balance with the linear 6-DOF damper at the same number of draws, measured in the same run.
 """
 
@@ -24,9 +24,12 @@ import time
 
 import numpy as np
 
-from sbcal.conductor import resolve_conductor
-from sbcal.damper import resolve_damper
-from sbcal.span import FemImpedance, energy_balance, optimise_position, span_study, store_span, strouhal_band
+from sbcal.design.conductor import resolve_conductor
+from sbcal.model.damper import resolve_damper
+from sbcal.design.placement import optimise_position
+from sbcal.design.span import FemImpedance, energy_balance
+from sbcal.design.span_study import span_study, store_span
+from sbcal.design.vibration import strouhal_band
 
 from _timing import best_time  # benchmarks/ is on sys.path when run as a script
 

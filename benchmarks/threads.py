@@ -1,5 +1,5 @@
 """BLAS threads in parallel fits: the cable likelihood in two processes side by side, with OpenBLAS's
-default threads (the baseline) and with one thread per process (``sbcal.workers.one_blas_thread``).
+default threads (the baseline) and with one thread per process (``sbcal.core.workers.one_blas_thread``).
 
 Usage: python benchmarks/threads.py [--sets 80] [--repeat 40]
 
@@ -24,10 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sbcal.bench import default_bench_path, load_bench  # noqa: E402
-from sbcal.cable_fit import cable_likelihood, state_tests  # noqa: E402
-from sbcal.damper import resolve_damper  # noqa: E402
-from sbcal.workers import one_blas_thread  # noqa: E402
+from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
+from sbcal.inference.cable_fit import cable_likelihood, state_tests  # noqa: E402
+from sbcal.model.damper import resolve_damper  # noqa: E402
+from sbcal.core.workers import one_blas_thread  # noqa: E402
 
 
 def _calls(job) -> float:

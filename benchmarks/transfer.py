@@ -10,14 +10,14 @@ Usage: python benchmarks/transfer.py [--work DIR] [--draws 300] [--seed 0]
    thesis's constant amplitudes. The calibration never sees these recordings.
 3. The cable law: ``sbcal cable --damper damper1 --law iwan5`` (the family that fits this cable:
    docs/cable.md), stored under ``DIR/runs`` (reused when there).
-4. The new route: :func:`sbcal.predict.predict` for NEW at each amplitude (tolerances: the default
+4. The new route: :func:`sbcal.design.predict.predict` for NEW at each amplitude (tolerances: the default
    +-5 % on the offsets; bands with the calibration's model error, the default, and without),
    compared with NEW's run means (outlier runs removed as the calibration removes them; magnitude:
    geometric mean, phase: mean): the share of the lines whose run mean lies inside the 90 % band
    (magnitude, phase, both), and the rms error of the median (magnitude %, phase deg).
 5. The thesis's route on the same data: one EJ and beta per test of damper1 (``sbcal sample --all``,
    theta1, stored under ``DIR/runs``), the power laws ``EJ(A) = k A^-n`` and ``beta(A) = k A^-n``
-   fitted to them by :func:`sbcal.amplitude.fit_law` (what ``sbcal map`` does for EJ; the tests'
+   fitted to them by :func:`sbcal.inference.amplitude.fit_law` (what ``sbcal map`` does for EJ; the tests'
    scatter about the law included in the draws), applied at the same base amplitude in the 6-DOF
    model of NEW with the same +-5 % offsets; its band with its own model error too (the per-test
    fit's learned ``sigma_mag``, ``sigma_phase`` at that amplitude, drawn from its posterior), and
@@ -40,12 +40,16 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from sbcal.amplitude import fit_law, points_from_runs  # noqa: E402
-from sbcal.bench import load_bench, remove_outlier_runs, write_bench  # noqa: E402
-from sbcal.damper import Damper  # noqa: E402
-from sbcal.fem import dynamic_stiffness  # noqa: E402
-from sbcal.predict import plot_prediction, predict, store_prediction  # noqa: E402
-from sbcal.virtual_bench import record  # noqa: E402
+from sbcal.inference.amplitude import fit_law, points_from_runs  # noqa: E402
+from sbcal.data.bench import write_bench
+from sbcal.data.cleaning import remove_outlier_runs
+from sbcal.data.readers import load_bench  # noqa: E402
+from sbcal.model.damper import Damper  # noqa: E402
+from sbcal.model.fem import dynamic_stiffness  # noqa: E402
+from sbcal.design.predict import predict
+from sbcal.design.predict_plots import plot_prediction
+from sbcal.design.predict_store import store_prediction  # noqa: E402
+from sbcal.simulate.virtual_bench import record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 AMPS = (0.1, 0.2, 0.3, 0.4, 0.5, 1.0, 2.0)
@@ -86,7 +90,7 @@ def run_means(bench, test):
 def thesis_route(runs: Path, draws: int, seed: int):
     """Per amplitude: draws of EJ and beta from the power laws of damper1's per-test posteriors, and of
     that amplitude's test's learned model error (sigma_mag, sigma_phase)."""
-    from sbcal.runs import posterior_draws
+    from sbcal.inference.runs import posterior_draws
 
     keep = lambda t: "oiled" not in t  # noqa: E731
     laws = {name: fit_law(points_from_runs(runs, "damper1", name, include=keep), "powerlaw", seed=seed + i)

@@ -12,9 +12,10 @@ import sys
 
 import numpy as np
 
-from . import __version__
-from .errors import InputError
-from .workers import default_workers, one_blas_thread
+from .core.errors import InputError
+from .core.version import __version__
+from .core.workers import default_workers, one_blas_thread
+
 
 __all__ = ["main"]
 
@@ -28,7 +29,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _parse_set(items) -> dict:
     """``["EJ=9", "beta=0.3"]`` -> ``{"EJ": 9.0, "beta": 0.3}``, names checked against the model."""
-    from .fem import PARAMETER_NAMES
+    from .model.fem import PARAMETER_NAMES
 
     out = {}
     for item in items or ():
@@ -49,7 +50,7 @@ def _parse_set(items) -> dict:
 
 
 def _parse_frequencies(text: str) -> np.ndarray:
-    from .fem import STANDARD_GRID_HZ
+    from .model.fem import STANDARD_GRID_HZ
 
     if text == "standard":
         return STANDARD_GRID_HZ.copy()
@@ -78,9 +79,9 @@ def _add_simulate(sub):
 
 
 def _cmd_simulate(args) -> int:
-    from .bench import curves_to_frame, test_label, write_bench
-    from .damper import resolve_damper
-    from .fem import dynamic_stiffness
+    from .data.bench import curves_to_frame, test_label, write_bench
+    from .model.damper import resolve_damper
+    from .model.fem import dynamic_stiffness
 
     damper = resolve_damper(args.damper)
     params = _parse_set(args.set)
@@ -138,7 +139,7 @@ def _add_sample(sub):
 
 def _bench_for(args):
     """The ``--bench`` file, or the bundled data."""
-    from .bench import default_bench_path, load_bench
+    from .data.readers import default_bench_path, load_bench
 
     if args.bench:
         return load_bench(args.bench, sheet=getattr(args, "sheet", None))
@@ -172,8 +173,8 @@ def _print_summary(name, t, paramset, s):
 
 
 def _cmd_sample(args) -> int:
-    from .calibrate import point_fit_test
-    from .damper import resolve_damper
+    from .inference.calibrate import point_fit_test
+    from .model.damper import resolve_damper
     from .pipeline import executor_for, sample_tests
 
     damper = resolve_damper(args.damper)
@@ -220,8 +221,9 @@ def _fmt_cv(cv: dict, name: str) -> str:
 
 
 def _cmd_data(args) -> int:
-    from ._io import write_json
-    from .bench import DEFAULT_Z_THRESHOLD, bench_summary, summary_notes
+    from .core._io import write_json
+    from .data.cleaning import DEFAULT_Z_THRESHOLD
+    from .data.summary import bench_summary, summary_notes
 
     z = DEFAULT_Z_THRESHOLD if args.z_threshold is None else args.z_threshold
     bench = _bench_for(args)
@@ -272,8 +274,8 @@ def _add_map(sub):
 def _cmd_map(args) -> int:
     from pathlib import Path
 
-    from ._io import write_json
-    from .amplitude import amplitude_map, map_from_store, points_from_table, stored_maps
+    from .core._io import write_json
+    from .inference.amplitude import amplitude_map, map_from_store, points_from_table, stored_maps
 
     if args.table:
         doc, _ = amplitude_map(points_from_table(args.table), seed=args.seed)
@@ -281,7 +283,7 @@ def _cmd_map(args) -> int:
         key = "table"
     else:
         root = Path(args.runs)
-        from .span import SPAN_STORE
+        from .design.span_study import SPAN_STORE
 
         names = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != SPAN_STORE) if root.is_dir() else []
         for name in names:  # every damper's map is a stage of the run store (map.json + map.nc)
@@ -293,8 +295,8 @@ def _cmd_map(args) -> int:
                              f"(dampers with enough runs: {have}); run 'sbcal sample --all --damper {args.damper}' first")
         key = args.damper
         if args.joint:
-            from .amplitude import joint_from_runs
-            from .damper import resolve_damper
+            from .inference.amplitude import joint_from_runs
+            from .model.damper import resolve_damper
 
             doc = docs[key]
             joint = joint_from_runs(resolve_damper(args.damper), _bench_for(args), args.runs, doc, args.params,
@@ -325,7 +327,7 @@ def _cmd_map(args) -> int:
         out["others"] = {k: public(v) for k, v in docs.items() if k != key}
         write_json(args.json, out, indent=2)
     if args.plot:
-        from .amplitude import plot_map
+        from .inference.amplitude import plot_map
 
         plot_map(docs, args.plot)
     return 0
@@ -354,7 +356,7 @@ def _add_report(sub):
 
 
 def _cmd_report(args) -> int:
-    from .report import build_report
+    from .report.build import build_report
 
     if args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be >= 1")
@@ -388,7 +390,7 @@ def _add_run(sub):
 
 
 def _cmd_run(args) -> int:
-    from .damper import bundled_dampers, resolve_damper
+    from .model.damper import bundled_dampers, resolve_damper
     from .pipeline import executor_for, run
 
     bench = _bench_for(args)
@@ -432,9 +434,9 @@ def _add_bench(sub):
 
 
 def _cmd_bench(args) -> int:
-    from .bench import write_bench
-    from .damper import resolve_damper
-    from .virtual_bench import DEFAULT_TESTS, BenchConfig, parse_effect, record
+    from .data.bench import write_bench
+    from .model.damper import resolve_damper
+    from .simulate.virtual_bench import DEFAULT_TESTS, BenchConfig, parse_effect, record
 
     damper = resolve_damper(args.damper)
     params = _parse_set(args.set)
@@ -485,14 +487,12 @@ def _add_diagnose(sub):
 
 
 def _cmd_diagnose(args) -> int:
+    from dataclasses import replace
     from pathlib import Path
 
-    from ._io import write_json
-    from .damper import resolve_damper
-    from .diagnose import diagnose
-
-    from dataclasses import replace
-
+    from .core._io import write_json
+    from .diagnosis.diagnose import diagnose
+    from .model.damper import resolve_damper
     from .pipeline import diagnose_inputs, executor_for
 
     damper = resolve_damper(args.damper)
@@ -515,8 +515,8 @@ def _cmd_diagnose(args) -> int:
     stored = Path(args.runs) / damper.name / "diagnose.json"
     write_json(stored, result, indent=1)
     if args.curves:
-        from .bench import write_bench
-        from .diagnose import curves_frame
+        from .data.bench import write_bench
+        from .diagnosis.diagnose import curves_frame
 
         write_bench(curves_frame(result), args.curves)
     print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else ""))
@@ -552,7 +552,7 @@ _LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contai
 
 
 def _add_cable(sub):
-    from .hysteresis import FITTED_LAWS
+    from .model.hysteresis import FITTED_LAWS
 
     p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
                        description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
@@ -579,8 +579,8 @@ def _cmd_cable(args) -> int:
     from dataclasses import asdict
     from pathlib import Path
 
-    from .cable_fit import fit_damper_cable, store_cable
-    from .damper import resolve_damper
+    from .inference.cable_fit import fit_damper_cable, store_cable
+    from .model.damper import resolve_damper
 
     damper = resolve_damper(args.damper)
     bench = _bench_for(args)
@@ -644,9 +644,12 @@ def _add_predict(sub):
 
 
 def _cmd_predict(args) -> int:
-    from .damper import resolve_damper
-    from .predict import (load_cable_run, parse_sweep, plot_prediction, plot_sweep, predict, store_prediction,
-                          store_sweep, sweep, write_csv)
+    from .design.cable_run import load_cable_run
+    from .design.predict import predict
+    from .design.predict_plots import plot_prediction, plot_sweep
+    from .design.predict_store import store_prediction, store_sweep, write_csv
+    from .design.sweep import parse_sweep, sweep
+    from .model.damper import resolve_damper
 
     cable = load_cable_run(args.cable)
     damper = resolve_damper(args.damper)
@@ -754,7 +757,7 @@ def _margin_words(m: float) -> str:
 
 
 def _cmd_span(args) -> int:
-    from .span import span_study, store_span
+    from .design.span_study import span_study, store_span
 
     wind = _parse_wind(args.wind)
     if args.draws < 2:
@@ -840,7 +843,7 @@ def main(argv=None) -> int:
         if args.command is None:
             parser.print_help()
             return 2
-        with one_blas_thread():  # every process of sbcal's: see sbcal/workers.py
+        with one_blas_thread():  # every process of sbcal's: see sbcal/core/workers.py
             return _COMMANDS[args.command][1](args)
     except InputError as e:
         print(f"sbcal: error: {e}", file=sys.stderr)

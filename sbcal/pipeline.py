@@ -29,12 +29,15 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-from ._io import write_json
-from .bench import DEFAULT_Z_THRESHOLD, bench_summary, quality_table, rows_digest
-from .damper import Damper
-from .errors import InputError
-from .progress import progress_bar
-from .workers import default_workers, one_blas_thread
+from .core._io import write_json
+from .core.errors import InputError
+from .core.progress import progress_bar
+from .core.workers import default_workers, one_blas_thread
+from .data.bench import rows_digest
+from .data.cleaning import DEFAULT_Z_THRESHOLD, quality_table
+from .data.summary import bench_summary
+from .model.damper import Damper
+
 
 __all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "sample_inputs",
            "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run", "STAGES"]
@@ -69,8 +72,8 @@ class Settings:
     workers: int = field(default_factory=default_workers)
 
     def __post_init__(self):
-        from .diagnose import DiagnoseConfig
-        from .sampler import SamplerConfig
+        from .diagnosis.diagnose import DiagnoseConfig
+        from .inference.sampler import SamplerConfig
 
         if self.sampler is None:
             object.__setattr__(self, "sampler", SamplerConfig())
@@ -93,7 +96,7 @@ def inputs_digest(obj) -> str:
 
 def file_digest(path=None, bundled: str = "default.toml") -> str:
     """sha256 of a prior file (the bundled one when ``path`` is None)."""
-    from .priors import _default_path
+    from .inference.priors import _default_path
 
     if path is None:
         return _sha(_default_path(bundled).read_bytes())
@@ -109,7 +112,7 @@ def _damper_digest(damper: Damper) -> str:
 
 
 def _version() -> str:
-    from . import __version__
+    from .core.version import __version__
 
     return __version__
 
@@ -199,7 +202,7 @@ def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict
 
 def _only(bench, damper: str):
     """The bench restricted to one damper (a summary of its rows only)."""
-    from .bench import BenchData
+    from .data.bench import BenchData
 
     return BenchData(source=bench.source, frame=bench.frame[bench.frame["damper"] == damper].reset_index(drop=True))
 
@@ -224,7 +227,7 @@ def sample_inputs(bench, damper: Damper, test: str, settings: Settings) -> dict:
 
 def _sample_job(job):
     damper, bench, test, store, settings, inputs, command = job
-    from .calibrate import calibrate_test
+    from .inference.calibrate import calibrate_test
 
     with one_blas_thread():
         return calibrate_test(damper, bench, test, paramset=settings.paramset, seed=settings.seed, out=store,
@@ -239,7 +242,7 @@ def sample_tests(bench, work, store, settings: Settings, *, executor=None, comma
     Jobs run in ``executor`` (a cluster), else in ``settings.workers`` local processes. Returns
     ``{(damper name, test): (summary, status)}``.
     """
-    from .runs import read_summary, run_dir
+    from .inference.runs import read_summary, run_dir
 
     out, jobs = {}, []
     for damper, t in work:
@@ -274,7 +277,7 @@ def diagnose_inputs(bench, damper: Damper, settings: Settings) -> dict:
 
 def _diagnose_job(job):
     bench, damper, store, settings, inputs, command, progress = job
-    from .diagnose import diagnose
+    from .diagnosis.diagnose import diagnose
 
     doc = diagnose(damper, bench, seed=settings.seed, config=settings.diagnose, progress=progress,
                    prior_path=settings.priors, store=store)
@@ -315,7 +318,7 @@ def map_damper(store, damper: str, settings: Settings, *, include_oiled: bool = 
 
     Returns ``(doc, status)``; ``doc`` is None when the damper has no tests at 3 or more amplitudes.
     """
-    from .amplitude import map_from_store
+    from .inference.amplitude import map_from_store
 
     return map_from_store(store, damper, settings.paramset, seed=settings.seed, include_oiled=include_oiled,
                           reuse=reuse)
@@ -328,7 +331,7 @@ def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None,
     ``say`` gets one line per stage, damper and test: reused or redone, and why. ``until`` (one of
     :data:`STAGES`) stops after that stage, its results stored; then no report is written (None).
     """
-    from .report import build_report
+    from .report.build import build_report
 
     if until not in STAGES:
         raise InputError(f"until: expected one of {', '.join(STAGES)}, got {until!r}")

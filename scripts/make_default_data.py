@@ -2,7 +2,7 @@
 
 Usage: python scripts/make_default_data.py [-o PATH] [--check]
 
-The file is made by the virtual bench (:mod:`sbcal.virtual_bench`, ``docs/virtual_bench.md``) with
+The file is made by the virtual bench (:mod:`sbcal.simulate.virtual_bench`, ``docs/virtual_bench.md``) with
 strand slip concealed, plus the bench's run-to-run scatter, measurement noise and outlier runs:
 damper1 and damper2 over the thesis's test plan (0.1, 0.2, 0.3, 0.4, 0.5, 1, 2 mm p-p, ``2-1``
 and ``1-1-oiled``), 24 runs per test on the standard 37-line grid. Each (damper, test) draws from
@@ -27,10 +27,10 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from sbcal.bench import write_bench
-from sbcal.damper import resolve_damper
-from sbcal.fem import dynamic_stiffness
-from sbcal.virtual_bench import DEFAULT_TESTS, BenchConfig, SlipLaw, record
+from sbcal.data.bench import write_bench
+from sbcal.model.damper import resolve_damper
+from sbcal.model.fem import dynamic_stiffness
+from sbcal.simulate.virtual_bench import DEFAULT_TESTS, BenchConfig, SlipLaw, record
 
 SEED = 20231121
 RUNS = 24
@@ -43,7 +43,7 @@ OUTPUT = Path(__file__).resolve().parents[1] / "sbcal" / "data" / "bench.csv"
 # material loss (its loss factor differs below 0.5 mm, thesis Fig. 4.12). Oiling the cable
 # lubricates the wires: they slip at lower curvature and the slipped strand is softer and less
 # lossy (thesis Fig. 2.13: "a clear reduction in the stiffness ... with a decrease of damping").
-# The law is the bench's own lognormal Iwan law (sbcal.hysteresis.LognormalIwanLaw), fitted by
+# The law is the bench's own lognormal Iwan law (sbcal.model.hysteresis.LognormalIwanLaw), fitted by
 # neither family: values chosen by least squares on the one-EJ-per-test table (damper 1).
 _LAW1 = SlipLaw(law="lognormal_iwan", params=(("delta_EJ", 42.0), ("chi_median", 0.006), ("log_spread", 2.1)))
 _LAW2 = SlipLaw(law="lognormal_iwan", params=(("delta_EJ", 41.0), ("chi_median", 0.0064), ("log_spread", 2.1)))

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import sbcal
-from sbcal.damper import Damper, resolve_damper
+from sbcal.model.damper import Damper, resolve_damper
 
 
 @pytest.fixture(scope="session")

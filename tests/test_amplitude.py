@@ -3,9 +3,9 @@ import pytest
 from scipy.stats import binom
 
 from sbcal import InputError
-from sbcal.amplitude import TestPoint, fit_law, points_from_table
+from sbcal.inference.amplitude import TestPoint, fit_law, points_from_table
 from sbcal.cli import main
-from sbcal.sampler import SamplerConfig
+from sbcal.inference.sampler import SamplerConfig
 
 FAST = SamplerConfig(nwalkers=16, max_draws=250, de_population=30, de_generations=60, workers=1)
 
@@ -77,7 +77,7 @@ def test_saturating_law_is_preferred_on_data_that_saturate_and_not_on_a_power_la
     = 6, c = 2, n = 1.2: EJ falls from 37 to 6.9 and flattens) prefer the saturating law; an exact
     power law prefers the power law. Three data sets each (fixed seeds; seed 6's power law is the one a
     1-SE rule got wrong): every one must decide right."""
-    from sbcal.amplitude import amplitude_map
+    from sbcal.inference.amplitude import amplitude_map
 
     for seed in (1, 2, 6):
         sat, _ = amplitude_map(_saturating_points(np.random.default_rng(seed), 6.0, 2.0, 1.2, 0.02), seed=seed,
@@ -110,9 +110,10 @@ def test_joint_model_recovers_known_power_law(tmp_path):
     import pandas as pd
 
     from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
-    from sbcal.amplitude import joint_powerlaw
-    from sbcal.bench import curves_to_frame, load_bench, write_bench
-    from sbcal.damper import resolve_damper
+    from sbcal.inference.amplitude import joint_powerlaw
+    from sbcal.data.bench import curves_to_frame, write_bench
+    from sbcal.data.readers import load_bench
+    from sbcal.model.damper import resolve_damper
     d = resolve_damper("damper2")
     rng = np.random.default_rng(2024)
     k, n = 8.5, 0.42

@@ -10,9 +10,12 @@ import pytest
 from scipy import stats
 
 import sbcal
-from sbcal import InputError, bench
-from sbcal.bench import (BENCH_COLUMNS, DEFAULT_Z_THRESHOLD, NOISE_FLOOR, SINGLE_RUN_SIGMA, TestData,
-                         load_bench, noise_model, quality_table, remove_outlier_runs, run_scores)
+from sbcal import InputError
+from sbcal.data import bench, cleaning, readers, summary
+from sbcal.data.bench import BENCH_COLUMNS, TestData
+from sbcal.data.cleaning import DEFAULT_Z_THRESHOLD, NOISE_FLOOR, quality_table, remove_outlier_runs, run_scores
+from sbcal.data.noise import SINGLE_RUN_SIGMA, noise_model
+from sbcal.data.readers import load_bench
 
 GRID = sbcal.STANDARD_GRID_HZ
 HEADER = ",".join(BENCH_COLUMNS)
@@ -232,7 +235,7 @@ def test_absent_damper_or_test_lists_what_exists(tmp_path):
 
 
 def test_default_bench_path_points_into_the_package():
-    p = bench.default_bench_path()
+    p = readers.default_bench_path()
     assert p.parent.name == "data" and p.parent.parent.name == "sbcal" and p.name in ("bench.csv", "bench.csv.gz")
 
 
@@ -314,10 +317,10 @@ def test_robust_scale_does_not_let_outliers_mask_each_other(damper1):
 
 def test_never_cut_below_three_runs_or_a_majority():
     # the rule itself: worst scores first, at most n - max(3, n // 2 + 1) runs
-    assert list(bench._outliers(np.array([5.0, 4.0, 0.5, 6.0, 0.9]), 3.0)) == [0, 3]     # n = 5: keep 3
-    assert list(bench._outliers(np.array([5.0, 4.0, 7.0]), 3.0)) == []                   # n = 3: never
-    assert list(bench._outliers(np.array([5.0, 4.0, 7.0, 3.5, 8.0, 1.0]), 3.0)) == [2, 4]  # n = 6: keep 4
-    assert list(bench._outliers(np.array([np.nan, 9.0, 1.0, 1.0, 1.0]), 3.0)) == [1]     # NaN: not scored
+    assert list(cleaning._outliers(np.array([5.0, 4.0, 0.5, 6.0, 0.9]), 3.0)) == [0, 3]     # n = 5: keep 3
+    assert list(cleaning._outliers(np.array([5.0, 4.0, 7.0]), 3.0)) == []                   # n = 3: never
+    assert list(cleaning._outliers(np.array([5.0, 4.0, 7.0, 3.5, 8.0, 1.0]), 3.0)) == [2, 4]  # n = 6: keep 4
+    assert list(cleaning._outliers(np.array([np.nan, 9.0, 1.0, 1.0, 1.0]), 3.0)) == [1]     # NaN: not scored
 
 
 def test_three_runs_with_an_outlier_are_left_alone(damper1):
@@ -375,8 +378,8 @@ def test_small_sample_factors_match_simulation():
     for n in (2, 3, 6, 15, 16, 25):
         x = rng.standard_normal((400_000 // n, n))
         r = (x - np.median(x, axis=1, keepdims=True)).ravel()
-        assert bench._q(np.array(n)) == pytest.approx(np.median(np.abs(r)), rel=0.015)
-        assert bench._k(np.array(n)) == pytest.approx(np.sqrt(np.mean(r ** 2)), rel=0.01)
+        assert cleaning._q(np.array(n)) == pytest.approx(np.median(np.abs(r)), rel=0.015)
+        assert cleaning._k(np.array(n)) == pytest.approx(np.sqrt(np.mean(r ** 2)), rel=0.01)
 
 
 # --- noise model -----------------------------------------------------------------------------------
@@ -507,8 +510,8 @@ def branch_test(damper, n_a, n_b, rng, bad=(), band=BAND, bad_offset=0.25) -> Te
 
 def plain_scores(t):
     """The run scores without branch detection (every line one group): what removal used to see."""
-    return np.fmax(*[np.sqrt(np.nanmean(bench._robust_z(x, NOISE_FLOOR) ** 2, axis=1))
-                     for x in bench._components(t)])
+    return np.fmax(*[np.sqrt(np.nanmean(cleaning._robust_z(x, NOISE_FLOOR) ** 2, axis=1))
+                     for x in cleaning._components(t)])
 
 
 def test_two_branches_are_reported_not_removed(damper1):
@@ -521,8 +524,8 @@ def test_two_branches_are_reported_not_removed(damper1):
     assert b.split and b.kept == "both" and b.band_hz == (16.0, 17.0)
     np.testing.assert_array_equal(b.freq_hz, [16.0, 17.0])
     assert b.runs == (tuple(range(13, 21)), tuple(range(1, 13)))
-    assert b.minority == (tuple(range(13, 21)),) * 2 and (b.separation >= bench.BRANCH_GAP).all()
-    assert bench.find_branches(t).runs == b.runs
+    assert b.minority == (tuple(range(13, 21)),) * 2 and (b.separation >= cleaning.BRANCH_GAP).all()
+    assert cleaning.find_branches(t).runs == b.runs
 
 
 def test_isolated_bad_run_is_removed_and_no_branch(damper1):
@@ -543,15 +546,15 @@ def test_branches_and_an_isolated_bad_run(damper1, bad):
 
 
 def n_split_lines(t):
-    return int(np.sum(np.fmax(*[bench._line_splits(x, NOISE_FLOOR)[0] for x in bench._components(t)])
-                      >= bench.BRANCH_GAP))
+    return int(np.sum(np.fmax(*[cleaning._line_splits(x, NOISE_FLOOR)[0] for x in cleaning._components(t)])
+                      >= cleaning.BRANCH_GAP))
 
 
 def test_a_group_of_bad_curves_is_not_a_branch(damper1):
     """Five of twenty runs 20 sigma off on every line split every line: not a band, so outliers."""
     t = branch_test(damper1, 20, 0, np.random.default_rng(14), bad=[2, 5, 8, 11, 14], bad_offset=0.6)
-    assert n_split_lines(t) > bench.BRANCH_MAX_LINE_FRACTION * GRID.size   # the case: many lines split
-    assert not bench.find_branches(t).split
+    assert n_split_lines(t) > cleaning.BRANCH_MAX_LINE_FRACTION * GRID.size   # the case: many lines split
+    assert not cleaning.find_branches(t).split
     assert remove_outlier_runs(t).removed_runs == (3, 6, 9, 12, 15)
 
 
@@ -560,7 +563,7 @@ def test_a_split_over_too_many_lines_is_not_a_branch(damper1):
     wide = (GRID >= 16) & (GRID <= 27)
     t = branch_test(damper1, 14, 6, np.random.default_rng(15), band=wide)
     assert n_split_lines(t) == 12
-    assert not bench.find_branches(t).split
+    assert not cleaning.find_branches(t).split
     assert len(remove_outlier_runs(t).removed_runs) == 6
 
 
@@ -569,7 +572,7 @@ def test_small_groups_are_not_branches(damper1):
     t = branch_test(damper1, 18, 2, np.random.default_rng(16))
     x = np.log(t.magnitude[:, BAND])
     assert (np.abs(x[18:] - np.median(x[:18], axis=0)) > 0.9).all()  # the case: 30 sigma off, at the band only
-    assert not bench.find_branches(t).split
+    assert not cleaning.find_branches(t).split
     assert remove_outlier_runs(t).removed_runs == (19, 20)
 
 
@@ -582,7 +585,7 @@ def test_no_branches_in_clean_tests(damper1):
     split = 0
     for k in range(400):
         t = noisy_test(damper1, (6, 8, 12, 24)[k % 4], rng, offset_mag=0.02)
-        split += bench.find_branches(t).split
+        split += cleaning.find_branches(t).split
     assert split <= 1, split
 
 
@@ -604,7 +607,7 @@ def _planted_outliers(i: int, j: int, n: int = 24, n_freq: int = 37) -> list:
     five scatter draws per run, the noise on both channels, then the outlier coin per run)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("mk", Path(bench.__file__).parents[1] / "scripts" / "make_default_data.py")
+    spec = importlib.util.spec_from_file_location("mk", Path(bench.__file__).parents[2] / "scripts" / "make_default_data.py")
     mk = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mk)
     rng = np.random.default_rng([mk.SEED, i, j])
@@ -617,7 +620,7 @@ def test_bundled_data_have_no_branches_and_lose_only_their_outliers():
     """The bundled recordings come from the stepped-sine virtual bench: each run follows the branch
     a sweep up the grid gives, so no test splits into two response branches, and the cleaning
     removes the outlier runs the generator planted (and at most one more run per test)."""
-    s = bench.bench_summary(load_bench(bench.default_bench_path()))
+    s = summary.bench_summary(load_bench(readers.default_bench_path()))
     assert not any(s[d][t]["branches"]["split"] for d in s for t in s[d])
     for i, d in enumerate(s):
         for j, t in enumerate(s[d]):

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from sbcal.cable import (DEFAULT_N_ELEMENTS, DEFAULT_SECTIONS, CableModel, ElementCableModel,
+from sbcal.model.cable import (DEFAULT_N_ELEMENTS, DEFAULT_SECTIONS, CableModel, ElementCableModel,
                          segments_from_frequencies)
-from sbcal.errors import InputError
-from sbcal.fem import STANDARD_GRID_HZ, clamp_impedance, dynamic_stiffness
-from sbcal.hysteresis import DahlLaw, HysteresisLaw, IwanLaw, LawParameter, LognormalIwanLaw
+from sbcal.core.errors import InputError
+from sbcal.model.fem import STANDARD_GRID_HZ, clamp_impedance, dynamic_stiffness
+from sbcal.model.hysteresis import DahlLaw, HysteresisLaw, IwanLaw, LawParameter, LognormalIwanLaw
 
 G = STANDARD_GRID_HZ
 DAHL = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_dahl=3e-3)

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from sbcal.bench import default_bench_path, load_bench
-from sbcal.cable_fit import cable_likelihood, cable_start, compared_laws, state_tests
-from sbcal.hysteresis import FITTED_LAWS
+from sbcal.data.readers import default_bench_path, load_bench
+from sbcal.inference.cable_fit import cable_likelihood, cable_start, compared_laws, state_tests
+from sbcal.model.hysteresis import FITTED_LAWS
 
 # Where the engine's own start (one differential-evolution search, seed 1) stopped on damper1's dry
 # cable under iwan5: chi_macro on its bound, a plateau where the law no longer changes within the

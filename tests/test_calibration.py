@@ -1,7 +1,7 @@
 """Coverage of the posterior on data simulated from the model with known parameters, with power.
 
 Geometry (``other_damper``), parameter values and seeds differ from the bundled data; each trial
-runs the pipeline's own noise model and likelihood (:func:`sbcal.calibrate.likelihood_for`) and the
+runs the pipeline's own noise model and likelihood (:func:`sbcal.inference.calibrate.likelihood_for`) and the
 engine under the convergence policy.
 
 The trial count is derived, not chosen: with K trials the count of 90 % intervals that contain the
@@ -18,11 +18,11 @@ import pytest
 from scipy.stats import binom
 
 from sbcal import STANDARD_GRID_HZ, dynamic_stiffness
-from sbcal.bench import TestData
-from sbcal.calibrate import likelihood_for
-from sbcal.damper import Damper
-from sbcal.priors import load_prior
-from sbcal.sampler import SamplerConfig, sample
+from sbcal.data.bench import TestData
+from sbcal.inference.calibrate import likelihood_for
+from sbcal.model.damper import Damper
+from sbcal.inference.priors import load_prior
+from sbcal.inference.sampler import SamplerConfig, sample
 
 F = STANDARD_GRID_HZ
 CONFIG = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60, workers=1)

@@ -3,9 +3,9 @@ import pandas as pd
 import pytest
 
 from sbcal.cli import main
-from sbcal.damper import load_damper
-from sbcal.fem import STANDARD_GRID_HZ
-from sbcal.reference import dynamic_stiffness_loop
+from sbcal.model.damper import load_damper
+from sbcal.model.fem import STANDARD_GRID_HZ
+from sbcal.model.reference import dynamic_stiffness_loop
 
 from .test_damper import GOOD
 

@@ -1,7 +1,7 @@
 import pytest
 
 from sbcal import InputError, load_damper
-from sbcal.damper import bundled_dampers, resolve_damper
+from sbcal.model.damper import bundled_dampers, resolve_damper
 
 GOOD = """
 name = "x"

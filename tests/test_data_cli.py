@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 import sbcal
-from sbcal import bench
+from sbcal.data import bench, readers
 from sbcal.cli import main
 
 GRID = sbcal.STANDARD_GRID_HZ
@@ -88,10 +88,10 @@ def test_bad_file_one_line_exit_2_no_output(tmp_path, capsys):
 
 
 def test_default_bench_is_the_bundled_file(bench_file, tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(bench, "default_bench_path", lambda: bench_file)
+    monkeypatch.setattr(readers, "default_bench_path", lambda: bench_file)
     assert main(["data"]) == 0
     assert str(bench_file) in capsys.readouterr().out
-    monkeypatch.setattr(bench, "default_bench_path", lambda: tmp_path / "sbcal" / "data" / "bench.csv")
+    monkeypatch.setattr(readers, "default_bench_path", lambda: tmp_path / "sbcal" / "data" / "bench.csv")
     assert main(["data"]) == 2
     err = capsys.readouterr().err
     assert "no bundled bench data" in err and "--bench" in err and err.count("\n") == 1

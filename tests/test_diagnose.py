@@ -11,17 +11,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sbcal.bench import load_bench, remove_outlier_runs, write_bench
-from sbcal.calibrate import likelihood_for
+from sbcal.data.bench import write_bench
+from sbcal.data.cleaning import remove_outlier_runs
+from sbcal.data.readers import load_bench
+from sbcal.inference.calibrate import likelihood_for
 from sbcal.cli import main
-from sbcal.damper import resolve_damper
-from sbcal.diagnose import DiagnoseConfig, _bands, _combined, _parameters, _scale_factor, _test_estimates, diagnose
-from sbcal.cable_fit import CableForward, cable_likelihood
-from sbcal.extensions import EXTENSIONS, model_for
-from sbcal.fem import STANDARD_GRID_HZ, dynamic_stiffness
-from sbcal.likelihood import JointLikelihood
-from sbcal.priors import cable_prior, extension_prior, load_prior
-from sbcal.virtual_bench import BenchConfig, response
+from sbcal.model.damper import resolve_damper
+from sbcal.diagnosis.diagnose import DiagnoseConfig, diagnose
+from sbcal.diagnosis.locate import _bands
+from sbcal.diagnosis.words import _combined, _parameters, _scale_factor, _test_estimates
+from sbcal.inference.cable_fit import CableForward, cable_likelihood
+from sbcal.model.extensions import EXTENSIONS, model_for
+from sbcal.model.fem import STANDARD_GRID_HZ, dynamic_stiffness
+from sbcal.inference.likelihood import JointLikelihood
+from sbcal.inference.priors import cable_prior, extension_prior, load_prior
+from sbcal.simulate.virtual_bench import BenchConfig, response
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from diagnose_matrix import run_case  # noqa: E402
@@ -39,7 +43,7 @@ def damper():
 
 
 def test_catalogue_ids_are_the_virtual_benchs():
-    from sbcal.virtual_bench import EFFECTS
+    from sbcal.simulate.virtual_bench import EFFECTS
 
     assert tuple(EXTENSIONS) == EFFECTS
     for e in EXTENSIONS:
@@ -87,7 +91,7 @@ def _like(damper, bench, test, prior, model=None):
 
 @pytest.fixture(scope="module")
 def small_bench(tmp_path_factory, damper):
-    from sbcal.virtual_bench import record
+    from sbcal.simulate.virtual_bench import record
 
     cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.25}, runs=8)
     path = tmp_path_factory.mktemp("diag") / "b.csv"
@@ -195,7 +199,7 @@ def test_diagnose_cli_bad_test_label(tmp_path, capsys, small_bench):
 def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_better():
     """The README's claim: on the bundled damper1 data the verdict is strand_slip, and one slip law
     for all amplitudes beats each test's own constant-EJ fit, test by test."""
-    from sbcal.bench import default_bench_path
+    from sbcal.data.readers import default_bench_path
 
     r = diagnose(resolve_damper("damper1"), load_bench(default_bench_path()), seed=0, progress=False)
     assert r["verdict"] == "strand_slip", r["ranking"]
@@ -268,8 +272,8 @@ def test_diagnose_cleans_with_the_pipelines_threshold(tmp_path):
     """The diagnosis removes outlier runs by the run's own threshold (``Settings.z_threshold``), not its own."""
     import pandas as pd
 
-    from sbcal.bench import curves_to_frame
-    from sbcal.diagnose import _jobs
+    from sbcal.data.bench import curves_to_frame
+    from sbcal.diagnosis.fits import _jobs
     from sbcal.pipeline import Settings
 
     d = resolve_damper("damper1")

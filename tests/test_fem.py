@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from sbcal import InputError, clamp_impedance, dynamic_stiffness, natural_frequencies
-from sbcal.fem import STANDARD_GRID_HZ
-from sbcal.reference import dynamic_stiffness_loop
+from sbcal.model.fem import STANDARD_GRID_HZ
+from sbcal.model.reference import dynamic_stiffness_loop
 
 FINE = np.linspace(1.0, 60.0, 301)
 

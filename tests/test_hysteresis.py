@@ -7,12 +7,12 @@ import pytest
 from scipy import special
 from scipy.integrate import quad
 
-from sbcal.damper import resolve_damper
-from sbcal.errors import InputError
-from sbcal.hysteresis import (
+from sbcal.model.damper import resolve_damper
+from sbcal.core.errors import InputError
+from sbcal.model.hysteresis import (
     FITTED_LAWS, LAWS, BoucWenLaw, DahlLaw, Iwan5Law, IwanLaw, IwanTailLaw, LognormalIwanLaw, jenkins_rigidity, law_for,
 )
-from sbcal.priors import extension_prior
+from sbcal.inference.priors import extension_prior
 
 DAHL = dict(delta_EJ=50.0, chi_dahl=2e-3)
 IWAN = dict(delta_EJ=50.0, chi_macro=5e-3, micro_exponent=-0.5, macro_ratio=0.3)
@@ -205,7 +205,7 @@ def test_bouc_wen_limits(n):
 def test_bouc_wen_is_smooth_across_its_table_ends():
     # the table's ends continue with the limits, matched in value and slope (the sampler's
     # log-density stays smooth): the jump and the kink are at the table's own accuracy
-    from sbcal.hysteresis import _BW_XI, _bw_v
+    from sbcal.model.hysteresis import _BW_XI, _bw_v
     law = BoucWenLaw()
     for n in (0.35, 1.7, 4.8):
         p = dict(BOUC, sharpness=n)

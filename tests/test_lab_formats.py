@@ -10,8 +10,11 @@ import pandas as pd
 import pytest
 
 import sbcal
-from sbcal import InputError, bench
-from sbcal.bench import BENCH_COLUMNS, bench_summary, load_bench
+from sbcal import InputError
+from sbcal.data import bench, readers
+from sbcal.data.bench import BENCH_COLUMNS
+from sbcal.data.readers import load_bench
+from sbcal.data.summary import bench_summary
 from sbcal.cli import main
 
 GRID = sbcal.STANDARD_GRID_HZ
@@ -19,7 +22,7 @@ GRID = sbcal.STANDARD_GRID_HZ
 
 @pytest.fixture(scope="module")
 def bundled() -> pd.DataFrame:
-    return load_bench(bench.default_bench_path()).frame
+    return load_bench(readers.default_bench_path()).frame
 
 
 def small(bundled):
@@ -62,7 +65,7 @@ def test_xlsx_and_parquet_give_the_csv_answer(tmp_path, bundled, capsys):
 def test_parquet_of_all_bundled_data(tmp_path, bundled):
     pq = tmp_path / "all.parquet"
     bundled.to_parquet(pq)
-    assert bench_summary(load_bench(pq)) == bench_summary(load_bench(bench.default_bench_path()))
+    assert bench_summary(load_bench(pq)) == bench_summary(load_bench(readers.default_bench_path()))
 
 
 def test_sheet_option_reads_one_sheet(tmp_path, bundled, capsys):
@@ -287,7 +290,7 @@ def test_semicolon_rejections_name_the_line(tmp_path, text, message):
 # --- frequency jitter ------------------------------------------------------------------------------
 
 def jitter_bench(freqs_per_run, seed=0) -> bench.BenchData:
-    from sbcal.damper import resolve_damper
+    from sbcal.model.damper import resolve_damper
 
     rng = np.random.default_rng(seed)
     d = resolve_damper("damper1")

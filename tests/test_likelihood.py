@@ -4,8 +4,8 @@ from scipy.stats import multivariate_t
 from scipy.stats import t as student_t
 
 from sbcal import InputError, STANDARD_GRID_HZ, dynamic_stiffness
-from sbcal.likelihood import NU_MIN, TestLikelihood
-from sbcal.priors import Prior, canonical_order, load_prior, parameter_sets
+from sbcal.inference.likelihood import NU_MIN, TestLikelihood
+from sbcal.inference.priors import Prior, canonical_order, load_prior, parameter_sets
 
 F = STANDARD_GRID_HZ
 

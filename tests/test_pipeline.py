@@ -12,12 +12,13 @@ import pandas as pd
 import pytest
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
-from sbcal.bench import curves_to_frame, load_bench, write_bench
+from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.readers import load_bench
 from sbcal.cli import main
-from sbcal.damper import resolve_damper
-from sbcal.diagnose import DiagnoseConfig
+from sbcal.model.damper import resolve_damper
+from sbcal.diagnosis.diagnose import DiagnoseConfig
 from sbcal.pipeline import Settings, run
-from sbcal.sampler import SamplerConfig
+from sbcal.inference.sampler import SamplerConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)

@@ -1,7 +1,7 @@
-"""sbcal.predict: a new damper from a stored cable-law posterior (docs/predict.md).
+"""sbcal.design.predict: a new damper from a stored cable-law posterior (docs/predict.md).
 
 The stored posterior is made here in seconds: draws scattered about a known iwan5 cable (the law's
-own curves as the bench recordings), packed by the real writer :func:`sbcal.cable_fit.store_cable`.
+own curves as the bench recordings), packed by the real writer :func:`sbcal.inference.cable_fit.store_cable`.
 What is tested is the prediction's plumbing and its numbers, not the sampler.
 """
 
@@ -13,17 +13,21 @@ import pandas as pd
 import pytest
 
 from sbcal import STANDARD_GRID_HZ, InputError, load_damper
-from sbcal.bench import curves_to_frame, load_bench, write_bench
-from sbcal.cable import CableModel
-from sbcal.cable_fit import CableFit, CableForward, cable_config, cable_likelihood, store_cable
+from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.readers import load_bench
+from sbcal.model.cable import CableModel
+from sbcal.inference.cable_fit import CableFit, CableForward, cable_config, cable_likelihood, store_cable
 from sbcal.cli import main
-from sbcal.damper import Damper, FILE_KEYS, resolve_damper, with_value
-from sbcal.fem import dynamic_stiffness, natural_frequencies
-from sbcal.hysteresis import law_for
-from sbcal.predict import (EXTRAPOLATION_MARGIN, _resonances, impedance_from_cable, load_cable_run, model_error_of,
-                           predict, read_prediction, read_sweep, store_prediction, store_sweep, sweep)
-from sbcal.sampler import SampleResult
-from sbcal.stats import loo, read_netcdf
+from sbcal.model.damper import Damper, FILE_KEYS, resolve_damper, with_value
+from sbcal.model.fem import dynamic_stiffness, natural_frequencies
+from sbcal.model.hysteresis import law_for
+from sbcal.design.cable_run import load_cable_run
+from sbcal.design.impedance import impedance_from_cable
+from sbcal.design.predict import EXTRAPOLATION_MARGIN, _resonances, model_error_of, predict
+from sbcal.design.predict_store import read_prediction, read_sweep, store_prediction, store_sweep
+from sbcal.design.sweep import sweep
+from sbcal.inference.sampler import SampleResult
+from sbcal.inference.stats import loo, read_netcdf
 
 from .test_damper import GOOD as BASE  # the damper file of the damper tests
 
@@ -238,7 +242,7 @@ def test_velocity_mode(run):
     n = CHAINS * DRAWS
     zero = {k: np.zeros(n) for k in ("a1", "a2")}
     # the reference: the same unit draws of the offsets, from the same seed, through the model
-    from sbcal.predict import _geometry, _streams, _tolerance, _unit_draws
+    from sbcal.design.cable_run import _geometry, _streams, _tolerance, _unit_draws
     _, geo = _streams(0)
     tol = _tolerance([NEW], False)
     overrides = dict(zero, **_geometry(NEW, tol, _unit_draws(tol, n, geo)))
@@ -330,7 +334,8 @@ def test_sweep_equals_single_predictions_and_moves_the_resonance(run):
 
 
 def test_resonance_tracks_follow_a_peak_across_design_values():
-    from sbcal.predict import Resonance, _tracks
+    from sbcal.design.predict import Resonance
+    from sbcal.design.sweep import _tracks
 
     def r(f):
         return Resonance(level=1.0, index=0, freq_hz=(f, f, f), power_w=(1.0, 1.0, 1.0), share=1.0)
@@ -366,8 +371,8 @@ def test_store_read_and_csv(run, tmp_path):
 
 
 def test_impedance_for_the_span(run):
-    from sbcal.conductor import resolve_conductor
-    from sbcal.span import energy_balance
+    from sbcal.design.conductor import resolve_conductor
+    from sbcal.design.span import energy_balance
 
     imp = impedance_from_cable(run, NEW, n_draws=6, seed=1)
     f = np.array([8.0, 15.0, 30.0])

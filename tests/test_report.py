@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
-from sbcal.bench import curves_to_frame, load_bench, write_bench
+from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.readers import load_bench
 from sbcal.pipeline import Settings, clean_damper, map_damper, sample_tests
 from sbcal.cli import main
-from sbcal.damper import resolve_damper
-from sbcal.sampler import SamplerConfig
+from sbcal.model.damper import resolve_damper
+from sbcal.inference.sampler import SamplerConfig
 
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)
 
@@ -126,11 +127,11 @@ def test_report_on_missing_store(tmp_path, capsys):
 
 def test_report_shows_the_diagnosis(run_store, tmp_path):
     """A stored ``sbcal diagnose`` result gets its section: verdict, ranking, before/after, figure."""
-    from sbcal.diagnose import DiagnoseConfig
-    from sbcal.virtual_bench import BenchConfig, record
+    from sbcal.diagnosis.diagnose import DiagnoseConfig
+    from sbcal.simulate.virtual_bench import BenchConfig, record
 
-    from sbcal._io import write_json
-    from sbcal.diagnose import diagnose
+    from sbcal.core._io import write_json
+    from sbcal.diagnosis.diagnose import diagnose
 
     d = resolve_damper("damper1")
     cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.3}, effects={"sensor_delay": 4e-4}, runs=8)

@@ -8,11 +8,12 @@ import pandas as pd
 import pytest
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
-from sbcal.bench import curves_to_frame, load_bench, write_bench
-from sbcal.calibrate import calibrate_test
+from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.readers import load_bench
+from sbcal.inference.calibrate import calibrate_test
 from sbcal.cli import main
-from sbcal.damper import resolve_damper
-from sbcal.sampler import SamplerConfig
+from sbcal.model.damper import resolve_damper
+from sbcal.inference.sampler import SamplerConfig
 
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)
 
@@ -105,7 +106,7 @@ def test_loo_falls_back_where_pareto_smoothing_fails(monkeypatch):
     the diagnosis's baseline): those get the plain importance-sampling estimate."""
     import types
 
-    import sbcal.stats as st
+    import sbcal.inference.stats as st
 
     rng = np.random.default_rng(0)
     ll = np.column_stack([rng.normal(-10, 0.5, 400), -75000 + 6000 * rng.random(400)]).reshape(4, 100, 2)
@@ -122,7 +123,7 @@ def test_loo_falls_back_where_pareto_smoothing_fails(monkeypatch):
 
 # ArviZ 0.x's compare sorts its table with ``sort_values(inplace=True)`` (arviz/stats/stats.py), which
 # pandas 3.1 deprecates (Pandas4Warning, PDEP-8) and pandas 4 removes. sbcal never calls compare (its
-# ELPD differences are computed in sbcal.stats); this test uses it as the reference, so the warning is
+# ELPD differences are computed in sbcal.inference.stats); this test uses it as the reference, so the warning is
 # ArviZ's own and filtered here by its text, and under pandas >= 4 the reference is checked to fail for
 # exactly that reason (then the ArviZ-independent check below still runs).
 @pytest.mark.filterwarnings("ignore:The inplace keyword in DataFrame.sort_values is deprecated:DeprecationWarning:arviz")
@@ -130,7 +131,7 @@ def test_elpd_difference_is_arviz_compare():
     """One helper for ELPD differences: its standard error is arviz.compare's dSE."""
     import arviz as az
 
-    from sbcal.stats import elpd_difference, loo
+    from sbcal.inference.stats import elpd_difference, loo
 
     rng = np.random.default_rng(3)
     a = rng.normal(-5, 1, (4, 250, 30))
@@ -157,9 +158,9 @@ def test_a_deprecation_sbcal_triggers_is_an_error():
     one attributed to a third-party library's own code does not."""
 
     with pytest.raises(DeprecationWarning):
-        warnings.warn_explicit("old", DeprecationWarning, "sbcal/bench.py", 1, module="sbcal.bench")
+        warnings.warn_explicit("old", DeprecationWarning, "sbcal/data/bench.py", 1, module="sbcal.data.bench")
     with pytest.raises(FutureWarning):
-        warnings.warn_explicit("old", FutureWarning, "sbcal/stats.py", 1, module="sbcal.stats")
+        warnings.warn_explicit("old", FutureWarning, "sbcal/inference/stats.py", 1, module="sbcal.inference.stats")
     with pytest.warns(DeprecationWarning):
         warnings.warn_explicit("old", DeprecationWarning, "x/y.py", 1, module="somelib.y")
 
@@ -169,7 +170,7 @@ def test_permuted_prior_file_gives_the_same_numbers(bench, tmp_path):
     in another order gives the very same posterior, draw for draw."""
     import tomllib
 
-    from sbcal.priors import _default_path
+    from sbcal.inference.priors import _default_path
 
     doc = tomllib.loads(_default_path().read_text())
     lines = []

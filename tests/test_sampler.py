@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sbcal.priors import Prior
-from sbcal.sampler import POLICY, SamplerConfig, _laplace, sample
+from sbcal.inference.priors import Prior
+from sbcal.inference.sampler import POLICY, SamplerConfig, _laplace, sample
 
 MEAN = np.array([1.0, -2.0, 0.5])
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, -0.3], [0.0, -0.3, 0.5]])

@@ -9,17 +9,19 @@ import pandas as pd
 import pytest
 
 from sbcal import STANDARD_GRID_HZ, dynamic_stiffness
-from sbcal.bench import curves_to_frame, load_bench, write_bench
-from sbcal.cable import CableModel
-from sbcal.cable_fit import cable_seed, read_cable
+from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.readers import load_bench
+from sbcal.model.cable import CableModel
+from sbcal.inference.cable_fit import cable_seed, read_cable
 from sbcal.cli import main
-from sbcal.damper import resolve_damper
-from sbcal.diagnose import DiagnoseConfig, _fit, _jobs
-from sbcal.hysteresis import law_for
+from sbcal.model.damper import resolve_damper
+from sbcal.diagnosis.diagnose import DiagnoseConfig
+from sbcal.diagnosis.fits import _fit, _jobs
+from sbcal.model.hysteresis import law_for
 from sbcal.pipeline import Settings, sample_tests
-from sbcal.sampler import SamplerConfig
-from sbcal.seeds import job_seed, seed_key
-from sbcal.stats import read_netcdf
+from sbcal.inference.sampler import SamplerConfig
+from sbcal.core.seeds import job_seed, seed_key
+from sbcal.inference.stats import read_netcdf
 
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60, workers=1)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sbcal import InputError
-from sbcal.conductor import (
+from sbcal.design.conductor import (
     SELF_DAMPING_PRESETS,
     WIND_CURVES,
     Conductor,
@@ -15,19 +15,10 @@ from sbcal.conductor import (
     load_conductor,
     resolve_conductor,
 )
-from sbcal.span import (
-    STATUS,
-    FemImpedance,
-    bending_amplitude,
-    energy_balance,
-    fatigue_limit,
-    optimise_position,
-    plot_span,
-    poffenberger_swart,
-    safe_border_line,
-    strouhal_band,
-    wind_power_curve,
-)
+from sbcal.design.placement import optimise_position
+from sbcal.design.span import STATUS, FemImpedance, energy_balance
+from sbcal.design.span_study import plot_span
+from sbcal.design.vibration import bending_amplitude, fatigue_limit, poffenberger_swart, safe_border_line, strouhal_band, wind_power_curve
 
 # Drake exactly as fed to pallas-dohl for the reference numbers below: D = 1.108 in, m = 1.094 lb/ft,
 # RTS = 31,500 lbf, converted with 0.0254 m/in, 0.45359237 kg/lb, 0.3048 m/ft, 4.4482216152605 N/lbf.

@@ -1,4 +1,4 @@
-"""``sbcal span`` and :func:`sbcal.span.span_study`: a damper from a stored cable fit on a conductor.
+"""``sbcal span`` and :func:`sbcal.design.span_study.span_study`: a damper from a stored cable fit on a conductor.
 
 The stored cable posteriors are made in well under a second by :func:`tests.test_predict._store`
 (draws scattered about a known iwan5 cable, packed by the real writer); no cable fit runs here.
@@ -13,10 +13,12 @@ import pytest
 
 from sbcal import InputError
 from sbcal.cli import main
-from sbcal.conductor import resolve_conductor
-from sbcal.predict import impedance_from_cable
-from sbcal.report import build_report
-from sbcal.span import energy_balance, read_span, span_study, stored_spans, strouhal_band
+from sbcal.design.conductor import resolve_conductor
+from sbcal.design.impedance import impedance_from_cable
+from sbcal.report.build import build_report
+from sbcal.design.span import energy_balance
+from sbcal.design.span_study import read_span, span_study, stored_spans
+from sbcal.design.vibration import strouhal_band
 
 from .test_predict import NEW, _store
 

@@ -7,13 +7,13 @@ import pytest
 from scipy.optimize import least_squares
 
 from sbcal import InputError, clamp_impedance, dynamic_stiffness
-from sbcal.bench import BENCH_COLUMNS, curves_to_frame, write_bench
+from sbcal.data.bench import BENCH_COLUMNS, curves_to_frame, write_bench
 from sbcal.cli import main
-from sbcal.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, free_response
-from sbcal.reference import _beam_k, _beam_m
-from sbcal.cable import ElementCableModel
-from sbcal.hysteresis import LognormalIwanLaw
-from sbcal.virtual_bench import (
+from sbcal.model.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, free_response
+from sbcal.model.reference import _beam_k, _beam_m
+from sbcal.model.cable import ElementCableModel
+from sbcal.model.hysteresis import LognormalIwanLaw
+from sbcal.simulate.virtual_bench import (
     BENCH_ELEMENTS, DEFAULT_TESTS, EFFECTS, EXTRA_EFFECTS, BenchConfig, FixtureResonance, SlipLaw, parse_effect,
     record, response, test_amplitude,
 )
@@ -33,7 +33,7 @@ def _complex(frame):
     return (frame.stiffness_n_per_m * np.exp(1j * np.radians(frame.phase_deg))).to_numpy()
 
 
-# --- the per-arm forward model added for the bench (sbcal.fem) -----------------------------------
+# --- the per-arm forward model added for the bench (sbcal.model.fem) -----------------------------------
 
 def _direct(d, f, ej1, ej2, b1, b2, xb):
     """Plain 6x6 assembly and solve: H and X_F at one line (the check of the modal forms)."""
@@ -138,7 +138,7 @@ def test_fixture_resonance_is_a_narrow_passive_mode(damper1):
 # --- strand slip ---------------------------------------------------------------------------------
 
 def test_strand_slip_is_the_distributed_cable(damper1):
-    # the bench's cable is sbcal.cable.ElementCableModel with its law and element count, followed up
+    # the bench's cable is sbcal.model.cable.ElementCableModel with its law and element count, followed up
     # the grid
     got = response(damper1, F, 1.0, {"EJ": 9.0, "beta": 0.1}, {"strand_slip": LAW})[0]
     model = ElementCableModel(LognormalIwanLaw(), n_elements=6)

@@ -1,0 +1,103 @@
+"""File input and output: TOML inputs read with one-line errors; atomic output (write to a
+temporary file beside the target, then rename), so an interrupted command never leaves a
+half-written output file behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import InputError
+
+
+__all__ = ["read_toml", "atomic_path", "write_json", "bundled_names", "resolve_bundled"]
+
+
+def read_toml(path) -> dict:
+    """A TOML file as a dict; a missing or unreadable file, text that is not UTF-8 and malformed
+    TOML raise :class:`InputError` with one line naming the file."""
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror}") from None
+    try:
+        return tomllib.loads(text.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: not UTF-8 text (byte {e.start})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: invalid TOML: {e}") from None
+
+
+@contextmanager
+def atomic_path(path, suffix: str = ""):
+    """Yield a temporary path in the target's directory; rename it onto ``path`` on success.
+
+    The parent directory is created. On any exception the temporary file is removed and
+    ``path`` is left as it was.
+    """
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix or ".tmp", dir=target.parent)
+    except OSError as e:
+        raise InputError(f"{target}: cannot write: {e.strerror}") from None
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_json(path, doc, **dumps) -> None:
+    """Write ``doc`` as JSON (``json.dumps(doc, **dumps)`` and a newline) to ``path``, atomically."""
+    import json
+
+    with atomic_path(path, ".json") as tmp:
+        tmp.write_text(json.dumps(doc, **dumps) + "\n", encoding="utf-8")
+
+
+def bundled_names(folder: str) -> list[str]:
+    """Names of the TOML descriptions shipped with sbcal in ``sbcal/<folder>/`` (``models``, ``conductors``)."""
+    from importlib import resources
+
+    root = resources.files("sbcal") / folder
+    return sorted(f.name[:-5] for f in root.iterdir() if f.name.endswith(".toml"))
+
+
+def resolve_bundled(name_or_path, folder: str, kind: str, load):
+    """``load`` of a bundled description by name (``damper1``) or of a description file by path.
+
+    Parameters
+    ----------
+    name_or_path : str or path-like
+    folder : str
+        The package-data folder of the bundled descriptions.
+    kind : str
+        What is described (``damper``), for the error.
+    load : callable
+        Reads one TOML file.
+    """
+    from importlib import resources
+
+    s = str(name_or_path)
+    if not s.endswith(".toml") and "/" not in s and s in bundled_names(folder):
+        with resources.as_file(resources.files("sbcal") / folder / f"{s}.toml") as f:
+            return load(f)
+    if not Path(s).exists() and "/" not in s and not s.endswith(".toml"):
+        raise InputError(f"{kind} '{s}': neither a bundled {kind} ({', '.join(bundled_names(folder))}) nor a file")
+    return load(s)

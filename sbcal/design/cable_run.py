@@ -1,0 +1,198 @@
+"""A stored cable-law run as ``predict`` and ``span`` read it, and the posterior draws they take from it
+(with the new damper's geometric tolerances drawn beside them)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..data.labels import parse_label
+from ..model.damper import GEOMETRY, Damper
+
+
+__all__ = ["CableRun", "load_cable_run"]
+
+_EFFECT_PARAMS = ("delay_s", "fixture_mass_kg", "rocking_rad_per_m")
+
+
+# --- the stored cable ------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class CableRun:
+    """A stored cable-law posterior, read once.
+
+    Attributes
+    ----------
+    path : Path
+        The run directory (``<runs>/<damper>/cable-<state>``).
+    summary : dict
+        Its ``summary.json``.
+    draws : dict of str -> ndarray, shape (n_draws,)
+        Posterior draws by parameter (chains pooled).
+    law : str
+        The law's family (:data:`sbcal.model.hysteresis.LAWS`).
+    calibration : Damper or None
+        The calibration damper, from the stored ``damper_values`` (None when not stored).
+    curvature_range : tuple of float
+        Least and largest curvature amplitude [1/m] the calibration's tests reached (``tests_reached``;
+        NaN when not stored).
+    """
+
+    path: Path
+    summary: dict
+    draws: dict
+    law: str
+    calibration: Damper | None
+    curvature_range: tuple
+
+    @property
+    def damper(self) -> str:
+        return str(self.summary.get("damper", self.path.parent.name))
+
+    @property
+    def state(self) -> str:
+        return str(self.summary.get("state", self.path.name.removeprefix("cable-")))
+
+    @property
+    def n_draws(self) -> int:
+        return int(next(iter(self.draws.values())).size)
+
+    def constant_amplitudes(self) -> list:
+        """The amplitudes [mm p-p] of the calibration's constant-amplitude tests (``A-A``), sorted."""
+        out = set()
+        for t in self.summary.get("tests", []):
+            p = parse_label(t)
+            if p and p.constant:
+                out.add(p.below_mm_pp)
+        return sorted(out)
+
+    def convergence_warning(self) -> str:
+        """'' when the posterior converged, else one line saying which parameters did not."""
+        from ..inference.sampler import POLICY
+
+        s = self.summary
+        if s.get("converged", False):
+            return ""
+        bad = [n for n, p in s.get("parameters", {}).items()
+               if not (p.get("r_hat", np.inf) <= POLICY["rhat_max"]
+                       and min(p.get("ess_bulk", 0), p.get("ess_tail", 0)) >= POLICY["ess_min"])]
+        which = (f"R-hat > {POLICY['rhat_max']} or ESS < {POLICY['ess_min']:.0f} for {', '.join(bad)}" if bad
+                 else "every parameter passes R-hat and ESS")
+        why = str(s.get("reason") or "no reason stored").split(":")[0].split(";")[0]  # its first clause
+        return (f"{self.path}: the cable posterior did not converge ({why}; {which}): the bands may be too "
+                "narrow or misplaced")
+
+
+def load_cable_run(run) -> CableRun:
+    """Read a stored cable-law posterior (see :class:`CableRun`); ``run`` a directory or a CableRun.
+
+    Raises
+    ------
+    InputError
+        One line: no such directory, no cable-law run in it, its posterior missing.
+    """
+    from ..inference.cable_fit import read_cable
+    from ..model.hysteresis import law_for
+
+    if isinstance(run, CableRun):
+        return run
+    path = Path(run)
+    if not path.is_dir():
+        raise InputError(f"{path}: no such cable run (a directory written by 'sbcal cable', "
+                         "e.g. runs/damper1/cable-dry)")
+    if not (path / "posterior.nc").is_file():
+        if (path / "summary.json").is_file():
+            raise InputError(f"{path}: posterior.nc is missing")
+        raise InputError(f"{path}: no cable-law run here (summary.json missing; 'sbcal cable' writes one)")
+    try:
+        summary, draws = read_cable(path)
+    except (OSError, ValueError, KeyError) as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError(f"{path}: cannot read the cable posterior ({e})") from None
+    law = summary["law"]
+    try:
+        needed = ("EJ_min", "beta_material") + law_for(law).parameter_names
+    except (KeyError, ValueError, InputError):
+        raise InputError(f"{path}: summary.json: unknown law {law!r}") from None
+    missing = [n for n in needed if n not in draws]
+    if missing:
+        raise InputError(f"{path}: posterior.nc has no draws of {missing[0]!r} (the {law} law needs {', '.join(needed)})")
+    values = summary.get("damper_values")
+    calibration = None
+    if isinstance(values, dict):
+        names = {f.name for f in dataclasses.fields(Damper)}
+        kw = {k: v for k, v in values.items() if k in names}
+        kw["tolerance"] = tuple(tuple(t) for t in kw.get("tolerance", ()))
+        try:
+            calibration = Damper(**kw)
+        except TypeError:
+            calibration = None
+    reached = summary.get("tests_reached") or {}
+    if reached:
+        rng = (min(float(r["curvature_min"]) for r in reached.values()),
+               max(float(r["curvature_max"]) for r in reached.values()))
+    else:
+        rng = (float("nan"), float("nan"))
+    return CableRun(path=path, summary=summary, draws={k: np.asarray(v, float) for k, v in draws.items()},
+                    law=law, calibration=calibration, curvature_range=rng)
+
+
+def _is_calibration_damper(cable: CableRun, damper: Damper) -> bool:
+    c = cable.calibration
+    if c is None or c.name != damper.name:
+        return False
+    return all(np.isclose(getattr(c, k), getattr(damper, k), rtol=1e-12, atol=0.0) for k in GEOMETRY)
+
+
+# --- the draws -------------------------------------------------------------------------------------
+
+def _streams(seed):
+    """Independent generators: the posterior subset and the geometry draws."""
+    choice, geometry = np.random.SeedSequence(seed).spawn(2)
+    return np.random.default_rng(choice), np.random.default_rng(geometry)
+
+
+def _subset(cable: CableRun, n_draws: int, rng) -> np.ndarray:
+    """Indices of the posterior draws used (all of them, in order, when n_draws >= the stored number)."""
+    n = cable.n_draws
+    if n_draws >= n:
+        return np.arange(n)
+    return np.sort(rng.choice(n, size=n_draws, replace=False))
+
+
+def _cable_params(cable: CableRun, idx, bench_effects: bool, own_offsets: bool) -> dict:
+    from ..model.hysteresis import law_for
+
+    names = ["EJ_min", "beta_material", *law_for(cable.law).parameter_names]
+    if own_offsets:
+        names += [n for n in ("a1", "a2") if n in cable.draws]
+    if bench_effects:
+        names += [n for n in _EFFECT_PARAMS if n in cable.draws]
+    return {n: cable.draws[n][idx] for n in names}
+
+
+def _tolerance(designs, own_offsets: bool) -> dict:
+    """The tolerances drawn: the damper's (:meth:`Damper.tolerances`), without fields that are zero in
+    every design and, for the calibration damper, without its offsets (the posterior's)."""
+    return {k: float(v) for k, v in designs[0].tolerances().items()
+            if any(getattr(d, k) != 0.0 for d in designs) and not (own_offsets and k in ("a1", "a2"))}
+
+
+def _unit_draws(tolerance: dict, n: int, rng) -> dict:
+    """``U(-1, 1)`` per toleranced field (sorted by name, so a seed fixes every field's draws)."""
+    return {k: rng.uniform(-1.0, 1.0, n) for k in sorted(tolerance)}
+
+
+def _geometry(damper: Damper, tolerance: dict, units: dict) -> dict:
+    """Per-draw geometry ``nominal + |nominal| pct/100 u`` of the toleranced fields (zero stays zero)."""
+    out = {}
+    for k, u in units.items():
+        v = getattr(damper, k)
+        if v != 0.0:
+            out[k] = v + abs(v) * tolerance[k] / 100.0 * u
+    return out

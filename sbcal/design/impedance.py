@@ -1,0 +1,83 @@
+"""The damper as a span sees it: the clamp impedance of a damper built with a calibrated cable, per
+posterior draw, over the span's frequencies (what :mod:`sbcal.design.span` reads)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..model.damper import Damper, resolve_damper
+from .cable_run import (_cable_params, _geometry, _is_calibration_damper, _streams, _subset, _tolerance, _unit_draws,
+                        load_cable_run)
+from .predict import _draw_checks
+
+
+__all__ = ["CableImpedance", "impedance_from_cable"]
+
+# --- the damper as a span sees it ------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class CableImpedance:
+    """A damper built with a calibrated cable as :class:`sbcal.design.span.Impedance`: one row per draw.
+
+    ``impedance(freq_hz (F,), amplitude_m (S, F) or (1, F)) -> complex (S, F)``: ``f_uu`` [N/m] at
+    the clamp amplitude ``amplitude_m`` [m, 0-peak] per draw and line, each (draw, line) its own
+    steady state (no sweep history: the span has none). Module-level, picklable.
+
+    Attributes
+    ----------
+    damper : Damper
+        Nominal geometry (the draws' geometry is in ``params``).
+    law : str
+    params : dict of str -> ndarray, shape (S,)
+        The cable draws and the geometry draws.
+    """
+
+    damper: Damper
+    law: str
+    params: dict
+    model: object = field(init=False, repr=False)
+
+    def __post_init__(self):
+        from ..model.cable import CableModel
+        from ..model.hysteresis import law_for
+
+        object.__setattr__(self, "model", CableModel(law_for(self.law)))
+
+    @property
+    def n_draws(self) -> int:
+        return int(next(iter(self.params.values())).size)
+
+    def __call__(self, freq_hz, amplitude_m):
+        f = np.atleast_1d(np.asarray(freq_hz, float))
+        a = np.asarray(amplitude_m, float)
+        amp = 2e3 * np.broadcast_to(a.reshape(-1, f.size), (self.n_draws, f.size))
+        return self.model.dynamic_stiffness(self.damper, f, amp, **self.params)
+
+
+def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0) -> CableImpedance:
+    """The span's :class:`sbcal.design.span.Impedance` of a damper built with a calibrated cable.
+
+    Draws as :func:`predict` (posterior subset, geometry within the damper's tolerances; same
+    ``seed``, same draws); draws the cable model cannot evaluate (outside the law's domain) are
+    dropped. No bench effects: the span sees the damper itself.
+    """
+    cable = load_cable_run(run)
+    damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
+    n_draws = _draw_checks(n_draws)
+    own = _is_calibration_damper(cable, damper)
+    pick, geo = _streams(seed)
+    idx = _subset(cable, n_draws, pick)
+    tolerance = _tolerance([damper], own)
+    params = dict(_cable_params(cable, idx, False, own),
+                  **_geometry(damper, tolerance, _unit_draws(tolerance, idx.size, geo)))
+    imp = CableImpedance(damper=damper, law=cable.law, params=params)
+    probe = imp(np.array([10.0]), np.array([[1e-4]]))[:, 0]
+    keep = np.isfinite(probe)
+    if not keep.any():
+        raise InputError(f"{cable.path}: no posterior draw gives a finite dynamic stiffness")
+    if not keep.all():
+        imp = CableImpedance(damper=damper, law=cable.law, params={k: v[keep] for k, v in params.items()})
+    return imp

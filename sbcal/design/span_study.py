@@ -1,0 +1,338 @@
+"""A span study (``sbcal span``): a stored damper (or none) on a conductor, its figure, stored and read back
+(``<runs>/span/<label>/``)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.plotting import pyplot, save_png
+from ..data.labels import parse_label
+from ..model.damper import Damper
+from .conductor import Conductor
+from .placement import Placement, optimise_position
+from .span import SpanResult, _jsonable, _positions, _q, energy_balance
+from .vibration import _wind_check
+
+
+__all__ = ["plot_span", "SPAN_STORE", "AMPLITUDE_MARGIN", "SpanStudy", "span_study", "span_dir", "store_span", "read_span", "stored_spans"]
+
+# ---------------------------------------------------------------------------------------------
+# Plot
+
+
+def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -> None:
+    """Y_max/D and stress against frequency with and without the dampers, the powers, and (with
+    ``placement``) the margin against position; one PNG written atomically."""
+    plt = pyplot()
+    r, d = result, result.conductor.diameter_m
+    f = r.freq_hz
+    n = 4 if placement is not None else 3
+    fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.0))
+    label = f"{r.n_dampers} damper(s) at {', '.join(f'{x:.2f}' for x in r.positions_m)} m" if r.positions_m else ""
+
+    ax = axes[0]
+    ax.plot(f, r.ymax_bare_m / d, "k--", lw=1, label="no damper")
+    if r.positions_m:
+        lo, mid, hi = _q(r.ymax_m / d)
+        ax.fill_between(f, lo, hi, color="C0", alpha=0.25)
+        ax.plot(f, mid, color="C0", label=f"{label} (median, 90 %)")
+    ax.set(yscale="log", xlabel="frequency [Hz]", ylabel="Y_max / D", title="Antinode amplitude")
+
+    ax = axes[1]
+    ax.plot(f, r.stress_bare_pa * 1e-6, "k--", lw=1, label="no damper")
+    if r.positions_m:
+        lo, mid, hi = _q(r.stress_pa * 1e-6)
+        ax.fill_between(f, lo, hi, color="C0", alpha=0.25)
+        ax.plot(f, mid, color="C0", label="with dampers (median, 90 %)")
+    ax.axhline(r.limit_pa * 1e-6, color="C3", lw=1, label=f"limit {r.limit_pa * 1e-6:.1f} MPa")
+    ax.set(yscale="log", xlabel="frequency [Hz]", ylabel="stress amplitude [MPa]",
+           title="Poffenberger-Swart stress at 89 mm")
+
+    ax = axes[2]
+    ax.plot(f, r.p_wind_bare_w, "k--", lw=1, label="wind = self-damping, no damper")
+    for arr, name, color in ((r.p_wind_w, "wind input", "C0"), (r.p_self_w, "self-damping", "C1"),
+                             (r.p_damper_w, "dampers", "C2")):
+        if name == "dampers" and not r.positions_m:
+            continue
+        ax.plot(f, np.median(arr, axis=0), color=color, label=name)
+    ax.set(yscale="log", xlabel="frequency [Hz]", ylabel="power over the span [W]", title="Powers at Y_max (median)")
+
+    if placement is not None:
+        ax = axes[3]
+        q = round(100 * placement.quantile)
+        ax.plot(placement.positions_m, placement.margin, "o-", color="C0", ms=3, label=f"{q} % quantile over draws")
+        ax.plot(placement.positions_m, placement.margin_median, color="C0", lw=1, alpha=0.5, label="median")
+        ax.axhline(1.0, color="C3", lw=1, label="margin 1")
+        ax.axvline(placement.best_position_m, color="k", lw=0.8, ls=":")
+        ax.set(xlabel="damper position from the clamp [m]", ylabel="worst-case margin over the band",
+               title=f"Placement ({placement.ends} end(s))")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    save_png(fig, path, dpi=110)
+
+
+# ---------------------------------------------------------------------------------------------
+# A study (``sbcal span``): a stored damper on a conductor, stored and read back
+
+SPAN_STORE = "span"
+"""The run store's directory of span studies: ``<runs>/span/<label>/`` (:func:`span_dir`)."""
+
+AMPLITUDE_MARGIN = 0.10
+"""A damper's clamp amplitude counts as beyond the calibration when it exceeds the largest amplitude
+of the cable run's tests by more than this fraction (the law is extrapolated there: a warning)."""
+
+_NO_DAMPER = ("none", "")
+
+
+@dataclass(frozen=True, eq=False)
+class SpanStudy:
+    """The energy balance of one conductor with one damper design, and where the damper came from.
+
+    Attributes
+    ----------
+    result : SpanResult
+        At the given position (or, with a placement and no position, at the best position).
+    placement : Placement or None
+        The margin against position (``optimise``).
+    damper : str
+        The damper's name; ``"none"`` for a bare span.
+    cable : str
+        The stored cable-law run the damper's impedance comes from ("" for a bare span).
+    cable_damper, state, law : str
+        That run's calibration damper, cable state and law family.
+    seed : int
+        Seed of the posterior subset and the geometry draws.
+    calibrated_amplitude_mm_pp : tuple of float
+        Least and largest clamp amplitude of the cable run's tests [mm p-p] (empty without a damper).
+    extrapolated_hz : tuple of float
+        Frequencies at which the median over draws of the dampers' largest clamp amplitude exceeds
+        the calibrated range by more than :data:`AMPLITUDE_MARGIN`.
+    warnings : tuple of str
+        The balance's and the study's (cable posterior not converged, law extrapolated).
+    """
+
+    result: SpanResult
+    placement: Placement | None = None
+    damper: str = "none"
+    cable: str = ""
+    cable_damper: str = ""
+    state: str = ""
+    law: str = ""
+    seed: int = 0
+    calibrated_amplitude_mm_pp: tuple = ()
+    extrapolated_hz: tuple = ()
+    warnings: tuple = ()
+
+    @property
+    def label(self) -> str:
+        """``<conductor>-<damper>[-<cable damper>]-<state>[-2ends]``, or ``<conductor>-bare``."""
+        parts = [self.result.conductor.name]
+        if self.cable:
+            parts += [self.damper] + ([self.cable_damper] if self.cable_damper != self.damper else []) + [self.state]
+        else:
+            parts.append("bare")
+        if self.result.ends == 2:
+            parts.append("2ends")
+        return re.sub(r"[^A-Za-z0-9._-]+", "_", "-".join(parts))
+
+    def worst_stress_mpa(self) -> dict:
+        """Largest stress over the band [MPa]: with the dampers (median, 5 %, 95 % over draws) and bare."""
+        r = self.result
+        worst = r.limit_pa / r.margin * 1e-6  # margin = limit / max stress; an unsolved draw gives inf
+        return {"median": _jsonable(np.median(worst)), "q05": _jsonable(np.quantile(worst, 0.05)),
+                "q95": _jsonable(np.quantile(worst, 0.95)), "bare": _jsonable(r.limit_pa / r.margin_bare * 1e-6)}
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the source of the damper, :meth:`SpanResult.to_dict` and the placement."""
+        doc = {"label": self.label, "damper": self.damper, "cable": self.cable, "cable_damper": self.cable_damper,
+               "state": self.state, "law": self.law, "seed": self.seed,
+               "calibrated_amplitude_mm_pp": list(self.calibrated_amplitude_mm_pp),
+               "extrapolated_hz": list(self.extrapolated_hz)}
+        doc |= self.result.to_dict()
+        doc["worst_stress_mpa"] = self.worst_stress_mpa()
+        doc["placement"] = self.placement.to_dict() if self.placement is not None else None
+        doc["warnings"] = list(self.warnings)
+        return doc
+
+
+def _damper_source(damper, cable):
+    """(CableRun or None, Damper or None) from the study's ``damper`` and ``cable`` arguments."""
+    from ..model.damper import resolve_damper
+    from .cable_run import load_cable_run
+
+    bare = damper is None or (isinstance(damper, str) and damper.strip().lower() in _NO_DAMPER)
+    if bare:
+        if cable is not None:
+            raise InputError("damper: a cable run was given without a damper; give the new damper's file with it, "
+                             "or the run itself as the damper")
+        return None, None
+    if not isinstance(damper, Damper) and Path(str(damper)).is_dir():
+        if cable is not None:
+            raise InputError(f"damper: {damper} is a stored cable run, which brings its own damper; give a damper "
+                             "file instead to build a new damper with the cable run")
+        run = load_cable_run(damper)
+        if run.calibration is None:
+            raise InputError(f"{run.path}/summary.json: key 'damper_values': missing, so the run's damper is unknown; "
+                             "give the damper's file as the damper and this run as the cable")
+        return run, run.calibration
+    d = damper if isinstance(damper, Damper) else resolve_damper(damper)
+    if cable is None:
+        where = d.source or d.name
+        raise InputError(f"{where}: damper {d.name!r} has no cable law: give a stored cable fit with it "
+                         "(cable=RUN, sbcal span --cable RUN, e.g. runs/damper1/cable-dry)")
+    return load_cable_run(cable), d
+
+
+def _calibrated_amplitudes(run) -> tuple:
+    """(least, largest) amplitude [mm p-p] of a cable run's tests, from their labels ``A-B``."""
+    labels = (parse_label(t) for t in run.summary.get("tests", []))
+    amps = [a for p in labels if p for a in p.amplitudes]
+    return (min(amps), max(amps)) if amps else ()
+
+
+def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int = 1, wind=(1.0, 7.0),
+               n_freq: int = 60, n_draws: int = 200, seed: int = 0, optimise: bool = False, positions_m=None,
+               quantile: float = 0.1, wave: str = "travelling", search_draws: int = 40) -> SpanStudy:
+    """One conductor, one damper design from a stored cable fit (or none): the energy balance with
+    posterior bands, the bare span beside it, and optionally the placement. Reads the cable run;
+    never refits.
+
+    Parameters
+    ----------
+    conductor : Conductor or str
+        A :class:`Conductor`, a bundled name (``drake``, ``aster570``) or a TOML path.
+    damper : None, "none", path-like, str or Damper
+        None or ``"none"``: the bare span. A stored cable-fit directory (``runs/damper1/cable-dry``):
+        that run's calibration damper with its own cable. Otherwise a damper (bundled name, TOML
+        path or :class:`sbcal.model.damper.Damper`) built with the cable of ``cable``.
+    cable : path-like, optional
+        The stored cable-fit directory for a new damper.
+    position_m : float or sequence of float, optional
+        Damper distance(s) from the suspension clamp [m]; required with a damper unless ``optimise``
+        (then the study's result is at the best position).
+    ends, wind, n_freq, wave
+        As in :func:`energy_balance`.
+    n_draws, seed
+        Posterior draws and their seed, as in :func:`sbcal.design.impedance.impedance_from_cable`.
+    optimise : bool
+        Also run :func:`optimise_position` (one damper per equipped end) over ``positions_m``
+        (default: its own grid) maximising the ``quantile`` of the worst-case margin.
+    search_draws : int
+        Draws of the placement's scan (a subset: each position is a full balance; 40 draws estimate
+        the 10 % quantile of the margin to a few per cent at a fifth of the cost of 200). The result
+        at the chosen position is then computed with all ``n_draws``.
+
+    Returns
+    -------
+    SpanStudy
+
+    Raises
+    ------
+    InputError
+        One line: a conductor file missing a field, a position outside the span, a damper with no
+        cable law (a directory that is not a cable fit, a damper file without ``cable``), a wind band
+        outside the wind laws' range.
+    """
+    from .conductor import resolve_conductor
+    from .impedance import impedance_from_cable
+
+    c = conductor if isinstance(conductor, Conductor) else resolve_conductor(conductor)
+    run, dmp = _damper_source(damper, cable)
+    _wind_check(wind)
+    if run is None:
+        if position_m is not None:
+            raise InputError("position: a bare span has no damper position; give a damper with it")
+        if optimise:
+            raise InputError("optimise: the placement needs a damper")
+        r = energy_balance(c, None, None, wind=wind, n_freq=n_freq, wave=wave)
+        return SpanStudy(result=r, warnings=r.warnings)
+    if position_m is None and not optimise:
+        raise InputError("position: give the damper's distance from the suspension clamp [m] (or optimise it)")
+    for xs in (position_m, positions_m):
+        if xs is not None:
+            try:
+                _positions(c, xs, ends)
+            except InputError as e:
+                raise InputError(f"{c.source or c.name}: span_length_m = {c.span_length_m:g} m; {e}") from None
+    notes = [w for w in (run.convergence_warning(),) if w]
+    imp = impedance_from_cable(run, dmp, n_draws=n_draws, seed=seed)
+    placement = None
+    if optimise:
+        scan = imp if search_draws >= n_draws else impedance_from_cable(run, dmp, n_draws=search_draws, seed=seed)
+        placement = optimise_position(c, scan, positions_m, ends=ends, quantile=quantile, wind=wind, n_freq=n_freq,
+                                      wave=wave)
+    at = position_m if position_m is not None else placement.best_position_m
+    r = energy_balance(c, imp, at, ends=ends, wind=wind, n_freq=n_freq, wave=wave)
+    cal = _calibrated_amplitudes(run)
+    extrapolated = ()
+    if cal:
+        top = 2e3 * np.nan_to_num(r.damper_amplitude_m, nan=0.0).max(axis=0)  # (S, F) mm p-p, largest damper
+        over = np.median(top, axis=0) > (1 + AMPLITUDE_MARGIN) * cal[1]
+        extrapolated = tuple(float(f) for f in r.freq_hz[over])
+        if over.any():
+            notes.append(f"the dampers' clamp amplitude reaches {np.max(np.median(top, axis=0)):.3g} mm p-p (median over "
+                         f"draws) at {over.sum()} of {over.size} frequencies ({min(extrapolated):.3g}-"
+                         f"{max(extrapolated):.3g} Hz), beyond the {cal[1]:g} mm p-p of the cable's calibration: "
+                         "the cable law is extrapolated there")
+    return SpanStudy(result=r, placement=placement, damper=dmp.name, cable=str(run.path), cable_damper=run.damper,
+                     state=run.state, law=run.law, seed=int(seed), calibrated_amplitude_mm_pp=cal,
+                     extrapolated_hz=extrapolated, warnings=tuple(r.warnings) + tuple(notes))
+
+
+def span_dir(study: SpanStudy, runs_dir=None) -> Path:
+    """``<runs>/span/<label>``; ``<runs>`` defaults to the store holding the cable run (its
+    grandparent: ``runs/damper1/cable-dry`` -> ``runs``), or ``runs`` for a bare span."""
+    if runs_dir is None:
+        runs_dir = Path(study.cable).parent.parent if study.cable else Path("runs")
+    return Path(runs_dir) / SPAN_STORE / study.label
+
+
+def store_span(study: SpanStudy, directory=None, *, meta: dict | None = None, json_path=None) -> Path:
+    """Write ``span.csv`` (per frequency, :meth:`SpanResult.to_frame`), ``span.png``
+    (:func:`plot_span`), ``placement.csv`` (with a placement) and, last, ``summary.json``
+    (:meth:`SpanStudy.to_dict` and ``meta``), each atomically, into ``directory`` (default
+    :func:`span_dir`); also the JSON at ``json_path``. Returns the directory."""
+    from ..core._io import atomic_path, write_json
+
+    d = Path(directory) if directory is not None else span_dir(study)
+    with atomic_path(d / "span.csv", ".csv") as tmp:
+        study.result.to_frame().to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
+    if study.placement is not None:
+        with atomic_path(d / "placement.csv", ".csv") as tmp:
+            study.placement.to_frame().to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
+    plot_span(study.result, d / "span.png", placement=study.placement)
+    doc = dict(study.to_dict(), **(meta or {}))
+    if json_path is not None:
+        write_json(json_path, doc, indent=1, allow_nan=False)
+    write_json(d / "summary.json", doc, indent=1, allow_nan=False)
+    return d
+
+
+def read_span(directory) -> dict:
+    """The ``summary.json`` of a stored span study (:func:`store_span`), checked for its main keys."""
+    import json
+
+    p = Path(directory) / "summary.json"
+    if not p.is_file():
+        raise InputError(f"{directory}: no stored span study (summary.json missing)")
+    try:
+        doc = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise InputError(f"{p}: not valid JSON ({e.msg}, line {e.lineno})") from None
+    for key in ("label", "conductor", "margin", "margin_bare", "per_frequency"):
+        if key not in doc:
+            raise InputError(f"{p}: key '{key}': missing (not a span study written by sbcal span)")
+    return doc
+
+
+def stored_spans(runs_dir) -> list:
+    """Every span study of a run store: ``[(directory, summary dict)]`` sorted by directory name."""
+    root = Path(runs_dir) / SPAN_STORE
+    return [(d, read_span(d)) for d in sorted(root.iterdir()) if (d / "summary.json").is_file()] if root.is_dir() else []

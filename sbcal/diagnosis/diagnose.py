@@ -1,0 +1,374 @@
+"""Missing physics: locate where the model and the recordings differ, name the physics left out,
+model it and show the fit improve (``docs/diagnose.md``).
+
+1. **Baseline**: the per-test model (``theta1``: EJ, beta, a1, a2) with the noise-only likelihood (no
+   model-error scales: the model must explain the runs within the bench's scatter), sampled per test.
+2. **Locate**: the residual of each test's run mean, line by line, standardised by the likelihood's
+   t of the run mean and the posterior spread of the model, ``z``. A line is *off* when ``|z|``
+   exceeds the t quantile that keeps the family-wise false-alarm rate over all lines at ``alpha``
+   (Bonferroni); neighbouring off lines form a band. The **global check** adds up the residual as a
+   whole (the normal scores of every ``z``, squared, against chi-square with the lines' degrees of
+   freedom less the fitted parameters): an effect spread thinly over every line, none of them beyond
+   the per-line alarm, still shows there. Structure statistics point at candidate physics.
+3. **Name**: each screened catalogue extension is refitted (``strand_slip``: the cable law of
+   :mod:`sbcal.inference.cable_fit`, every fitted family, jointly over the amplitudes of each cable state; the
+   best family by PSIS-LOO) and compared with the baseline by PSIS-LOO grouped by run.
+4. **Verdict**: ``none`` when neither the lines nor the global check find a misfit; else the best
+   extension when it beats the baseline clearly (``delta_elpd > clear_se * se``) *and* removes at least
+   ``min_explained`` of the misfit (the squared z in the located bands; without bands, the global
+   excess over chance); else ``unexplained``.
+5. **Secondary**: on the verdict's model the misfit is located again; where some remains, the
+   measurement-chain effects that compose with it (:data:`sbcal.inference.cable_fit.SECONDARY`,
+   :data:`sbcal.model.extensions.CHAIN`) are screened and refitted on top, and the same rule names a
+   ``secondary`` effect (else null).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, replace
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..data.bench import rows_digest
+from ..inference.cable_fit import SECONDARY, CableFit, state_tests, store_cable
+from ..inference.runs import versions
+from ..inference.stats import elpd_difference, loo
+from ..model.damper import Damper
+from ..model.extensions import CHAIN, EXTENSIONS
+from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits
+from .locate import _band_rms, _band_sq, _bands, _check, _rocking_signature, _screen, _signatures, _statistics
+from .words import _parameters
+
+
+__all__ = ["DiagnoseConfig", "diagnose", "curves_frame"]
+
+# --- models' checks and summaries ------------------------------------------------------------------
+
+def _model_curves(fits, keys, tests, joint: bool):
+    """Per test: posterior mean, variance and median of the model curves ``(2, n_freq)``."""
+    mean, var, med = {}, {}, {}
+    for key in keys:
+        fit = fits[key]
+        ts = state_tests(tests)[key[1]] if joint else [key[1]]
+        for t, m, v, d in zip(ts, fit["mu_mean"], fit["mu_var"], fit["mu_median"]):
+            mean[t], var[t], med[t] = m, v, d
+    return mean, var, med
+
+
+def _check_model(name, fits, keys, tests, likes, n_runs, config):
+    """A fitted model's predictive check and PSIS-LOO: ``(z, thresholds, coverage, elpd_i, global)``."""
+    joint = name.split("+")[0] == "strand_slip"
+    mean, var, _ = _model_curves(fits, keys, tests, joint)
+    n_params = sum(fits[k]["n_params"] for k in keys)
+    z, thr, coverage, glob = _check(likes, [mean[t] for t in tests], [var[t] for t in tests], config.alpha, n_params)
+    parts = {}
+    for key in keys:
+        e = loo(fits[key]["log_lik"]).pointwise
+        if joint:
+            ts = state_tests(tests)[key[1]]
+            for t, piece in zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])):
+                parts[t] = piece
+        else:
+            parts[key[1]] = e
+    return z, thr, coverage, np.concatenate([parts[t] for t in tests]), glob
+
+
+def _summary(name, fits, keys, check, ref_i, bands, tests) -> dict:
+    """Numbers of one model from its :func:`_check_model`: ELPD, misfit, coverage, convergence."""
+    z, thr, coverage, elpd_i, glob = check
+    out = {"effect": name, "elpd": float(elpd_i.sum()),
+           "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
+           "coverage_90": coverage,
+           "lines_off": int(sum(np.sum(np.abs(zt) > th) for zt, th in zip(z, thr))),
+           "n_lines": int(sum(zt.size for zt in z)),
+           "rms_z": float(np.sqrt(np.mean(np.concatenate([zt.ravel() for zt in z]) ** 2))),
+           "band_rms_z": _band_rms(bands, tests, z),
+           "global": glob,
+           "converged": all(fits[k]["converged"] for k in keys),
+           "r_hat_max": max(fits[k]["convergence"]["r_hat_max"] for k in keys),
+           "ess_bulk_min": min(fits[k]["convergence"]["ess_bulk_min"] for k in keys),
+           "tau_max": max(fits[k]["convergence"]["tau_max"] for k in keys),
+           "steps_max": max(fits[k]["convergence"]["n_steps"] for k in keys),
+           "not_converged": {" ".join(k[:2]): fits[k]["convergence"]["reason"] for k in keys if not fits[k]["converged"]}}
+    if ref_i is not None:
+        d, se = elpd_difference(ref_i, elpd_i)
+        out.update(delta_elpd=d, se=se)
+    return out
+
+
+def _misfit(bands, tests, z, glob) -> float:
+    """The misfit an extension must remove: squared z in the bands, else the global excess over chance."""
+    return _band_sq(bands, tests, z) if bands else max(glob["excess"], 0.0)
+
+
+def _explained(bands, tests, z_ref, glob_ref, z_new, glob_new) -> float:
+    before = _misfit(bands, tests, z_ref, glob_ref)
+    if before <= 0:
+        return 0.0
+    after = _band_sq(bands, tests, z_new) if bands else max(glob_new["excess"], 0.0)
+    return float(1 - after / before)
+
+
+# --- the diagnosis -------------------------------------------------------------------------------
+
+def _compare(candidates, spec_of, fits_all, ref_check, bands, tests, likes, n_runs, config):
+    """Check and rank candidate models against a reference model's check; ``(ranking, summaries, checks, kept)``."""
+    z_ref, _, _, ref_i, glob_ref = ref_check
+    ranking, summaries, checks, kept, laws = [], {}, {}, {}, {}
+    for e in candidates:
+        name = spec_of(e)
+        keys_fits, comparison = _choose_law(fits_all, name)
+        kept[e] = keys_fits
+        keys = sorted(keys_fits)
+        checks[e] = _check_model(name, keys_fits, keys, tests, likes, n_runs, config)
+        s = _summary(name, keys_fits, keys, checks[e], ref_i, bands, tests)
+        s["explained"] = _explained(bands, tests, z_ref, glob_ref, checks[e][0], checks[e][4])
+        if comparison is not None:
+            s["law"] = comparison
+            laws[e] = comparison
+        summaries[e] = s
+        ranking.append({"effect": e, "delta_elpd": s["delta_elpd"], "se": s["se"], "explained": s["explained"],
+                        "converged": s["converged"], "r_hat_max": s["r_hat_max"], "ess_bulk_min": s["ess_bulk_min"]})
+    ranking.sort(key=lambda r: -r["delta_elpd"])
+    return ranking, summaries, checks, kept, laws
+
+
+def _decide(misfit: bool, ranking, config) -> str | None:
+    if not misfit:
+        return None
+    best = ranking[0] if ranking else None
+    if best and best["delta_elpd"] > config.clear_se * best["se"] and best["explained"] >= config.min_explained:
+        return best["effect"]
+    return "unexplained"
+
+
+def _composable(primary: str) -> tuple:
+    """The effects that can ride on top of ``primary``."""
+    if primary == "strand_slip":
+        return tuple(SECONDARY)
+    if primary in ("baseline",) + CHAIN:
+        return tuple(e for e in CHAIN if e != primary)
+    if primary == "base_rocking":
+        return CHAIN
+    return ()
+
+
+def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: DiagnoseConfig = DiagnoseConfig(),
+             progress: bool = True, effects=None, prior_path=None, store=None) -> dict:
+    """Locate, name, model and show the physics a damper's recordings have and the model lacks.
+
+    Parameters
+    ----------
+    damper : Damper
+    bench : BenchData
+    tests : sequence of str, optional
+        Test labels (default: all of the damper's tests).
+    seed : int
+        Seeds every fit, each through a stream keyed by what it is (:func:`sbcal.core.seeds.job_seed`): the
+        same seed, the same numbers; a cable fit's are ``sbcal cable``'s.
+    config : DiagnoseConfig
+    progress : bool
+        Progress bars on stderr (when it is a terminal).
+    effects : sequence of str, optional
+        Restrict the catalogue (default: all of :data:`sbcal.model.extensions.EXTENSIONS`).
+    prior_path : path-like, optional
+        The prior file of the base parameters (``--priors``; default the bundled ``priors/default.toml``).
+    store : path-like, optional
+        A run store: a strand-slip verdict's cable-law posteriors are written to
+        ``<store>/<damper>/cable-<state>/`` (the fit ``sbcal cable`` makes).
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``verdict``, ``ranking``, ``bands``, ``parameters``, ``before``, ``after``,
+        ``secondary``, ``law``, ``global``, ``statistics``, ``screen``, ``per_test``, ``rule``,
+        ``settings`` (see ``docs/diagnose.md``); and ``curves`` (for :func:`curves_frame`).
+    """
+    t0 = time.perf_counter()
+    available = bench.tests(damper.name)
+    tests = list(available if tests is None else tests)
+    for t in tests:
+        if t not in available:
+            raise InputError(f"{bench.source}: damper {damper.name!r} has no test {t!r} (has: {', '.join(available)})")
+    if not tests:
+        raise InputError(f"{bench.source}: no tests for damper {damper.name!r}")
+    catalogue = list(EXTENSIONS if effects is None else effects)
+    for e in catalogue:
+        if e not in EXTENSIONS:
+            raise InputError(f"unknown effect {e!r}; known: {', '.join(EXTENSIONS)}")
+    label = (lambda stage: f"diagnose {damper.name}: {stage}") if progress else (lambda stage: None)
+
+    # 1-2. baseline and locate
+    jobs = _jobs("baseline", (), damper, bench, tests, seed, config, prior_path)
+    likes = [j[1] for j in jobs]
+    fits = _run_fits(jobs, config, label("per-test fits"))
+    base_fits = {k[1]: v for k, v in fits.items()}
+    base_keys = [("baseline", t) for t in tests]
+    n_runs = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
+    base_check = _check_model("baseline", fits, base_keys, tests, likes, n_runs, config)
+    z0, thr0, _, base_i, glob0 = base_check
+    bands = _bands(tests, likes, z0, thr0)
+    misfit = bool(bands) or glob0["p_value"] < config.global_alpha
+    statistics = _statistics(damper, tests, likes, base_fits, z0)
+    screen = _screen(statistics, config, EXTENSIONS)
+    before = _summary("baseline", fits, base_keys, base_check, None, bands, tests)
+
+    # 3. name: refit the screened candidates
+    candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
+    all_jobs = []
+    for e in candidates:
+        all_jobs += _jobs(e, (), damper, bench, tests, seed, config, prior_path)
+    if all_jobs:
+        fits.update(_run_fits(all_jobs, config, label(f"{len(candidates)} candidate extension(s)")))
+    ranking, summaries, checks, kept, laws = _compare(candidates, lambda e: e, fits, base_check, bands, tests,
+                                                      likes, n_runs, config)
+
+    # 4. verdict
+    verdict = _decide(misfit, ranking, config) or "none"
+    shown = verdict if verdict in EXTENSIONS else (ranking[0]["effect"] if ranking else None)
+    after = summaries[shown] if shown else before
+    shown_fits = kept.get(shown, {})
+    per_test = []
+    if shown:
+        z_after, _, _, after_i, _ = checks[shown]
+        start = 0
+        for t, zb, za in zip(tests, z0, z_after):
+            n = n_runs[t]
+            d, se = elpd_difference(base_i[start:start + n], after_i[start:start + n])
+            start += n
+            per_test.append({"test": t, "delta_elpd": d, "se": se, "rms_z_before": float(np.sqrt(np.mean(zb ** 2))),
+                             "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
+
+    # 5. secondary: locate again on the verdict's model, refit what composes with it
+    secondary = None
+    if config.secondary and verdict in EXTENSIONS and _composable(verdict):
+        secondary = _secondary(verdict, shown_fits, checks[verdict], damper, bench, tests, likes, n_runs, config,
+                               seed, prior_path, label)
+
+    if store is not None and verdict == "strand_slip":
+        _store_cables(damper, shown_fits, store, seed, laws.get("strand_slip"), tests)
+
+    result = {
+        "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict,
+        "bench": {"path": str(bench.source), "rows_sha256": rows_digest(bench, damper.name)},
+        "rule": (f"a misfit when a line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
+                 f"{config.alpha:g} over all lines) or the residual as a whole exceeds chance (chi-square of the lines' "
+                 f"normal scores, p < {config.global_alpha:g}); then the best extension if delta_elpd > "
+                 f"{config.clear_se:g} se and it removes >= {config.min_explained:.0%} of the misfit (squared z in the "
+                 f"bands; without bands, the global excess over chance); else unexplained; no misfit: none. The same "
+                 "rule names a secondary effect on the verdict's model."),
+        "ranking": ranking,
+        "bands": [{k: b[k] for k in ("test", "quantity", "f_lo", "f_hi", "max_abs_z")} for b in bands],
+        "global": glob0,
+        "parameters": _parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown else {},
+        "law": laws.get("strand_slip"),
+        "before": before,
+        "after": after,
+        "secondary": secondary,
+        "per_test": per_test,
+        "residuals": {t: {"freq_hz": lk.freq_hz.tolist(), "z_before": zb.tolist(),
+                          "z_after": (checks[shown][0][i] if shown else zb).tolist()}
+                      for i, (t, lk, zb) in enumerate(zip(tests, likes, z0))},
+        "curves": _curves(tests, likes, fits, base_keys, shown, shown_fits),
+        "statistics": statistics,
+        "screen": screen,
+        "settings": asdict(config),
+        "versions": versions(),
+        "wall_s": time.perf_counter() - t0,
+    }
+    return result
+
+
+def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes, n_runs, config, seed, prior_path,
+               label) -> dict | None:
+    """The second effect on top of the verdict's model (module docstring, step 5), or None."""
+    z1, thr1, _, _, glob1 = primary_check
+    bands1 = _bands(tests, likes, z1, thr1)
+    misfit = bool(bands1) or glob1["p_value"] < config.global_alpha
+    joint = primary == "strand_slip"
+    mean, var, _ = _model_curves(primary_fits, sorted(primary_fits), tests, joint)
+    sig = _signatures(tests, likes, [mean[t] for t in tests], [var[t] for t in tests], z1)
+    options = _composable(primary)
+    screen = _screen(sig, config, options)
+    if joint and "base_rocking" in options:
+        # no shape of its own to test the residuals for: the share its linearisation explains
+        share, value = _rocking_signature(primary_fits, tests, likes, mean, var)
+        sig["rocking_linear"] = {"share": share, "rocking_rad_per_m": value}
+        screen["base_rocking"] = {"kept": share >= config.screen_share,
+                                  "why": f"share of the misfit explained by the linearised rocking {share:.2f}"}
+    candidates = [e for e in options if screen[e]["kept"]] if misfit else []
+    out = {"effect": None, "misfit": misfit, "bands": len(bands1), "global": glob1, "screen": screen,
+           "statistics": sig, "ranking": []}
+    if not candidates:
+        return out
+    if joint:  # on top of the verdict's cable law only
+        config = replace(config, laws=(next(iter(primary_fits.values()))["law"],))
+    jobs = []
+    for e in candidates:
+        jobs += _jobs(primary, (e,), damper, bench, tests, seed, config, prior_path)
+    fits = _run_fits(jobs, config, label(f"secondary: {len(candidates)} candidate(s)"))
+    fits.update({k: v for k, v in primary_fits.items()})
+    ranking, summaries, checks, kept, _ = _compare(candidates, lambda e: _name(primary, (e,)), fits, primary_check,
+                                                   bands1, tests, likes, n_runs, config)
+    choice = _decide(True, ranking, config)
+    out["ranking"] = ranking
+    best = ranking[0]["effect"]
+    out["after"] = summaries[best]
+    out["before"] = _summary(primary, primary_fits, sorted(primary_fits), primary_check, None, bands1, tests)
+    if choice in options:
+        out["effect"] = choice
+        base_names = tuple(n for n in next(iter(primary_fits.values()))["names"])
+        out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names, tests)
+        out["residuals"] = {t: {"z_before": zb.tolist(), "z_after": za.tolist()}
+                            for t, zb, za in zip(tests, z1, checks[choice][0])}
+    return out
+
+
+def _curves(tests, likes, fits, base_keys, shown, shown_fits) -> dict:
+    """Posterior-median model curves per test of the baseline and the shown model (log-magnitude, phase)."""
+    out = {}
+    _, _, base = _model_curves(fits, base_keys, tests, False)
+    models = {"baseline": base}
+    if shown:
+        _, _, med = _model_curves(shown_fits, sorted(shown_fits), tests, shown == "strand_slip")
+        models[shown] = med
+    for name, med in models.items():
+        out[name] = {t: {"freq_hz": lk.freq_hz.tolist(), "amplitude_mm_pp": lk.amplitude_mm_pp.tolist(),
+                         "logmag": med[t][0].tolist(), "phase": med[t][1].tolist()} for t, lk in zip(tests, likes)}
+    out["data"] = {t: {"logmag": lk.ybar[0].tolist(), "phase": lk.ybar[1].tolist()} for t, lk in zip(tests, likes)}
+    return out
+
+
+def curves_frame(doc: dict):
+    """The fitted curves of a diagnosis (baseline and verdict model, posterior median per line) in the
+    bench CSV columns (``run`` 0) plus ``model``: a DataFrame for ``sbcal diagnose --curves``."""
+    import pandas as pd
+
+    from ..data.bench import curves_to_frame
+
+    frames = []
+    for model, per_test in doc["curves"].items():
+        if model == "data":
+            continue
+        for t, c in per_test.items():
+            fuu = np.exp(np.asarray(c["logmag"]) + 1j * np.asarray(c["phase"]))
+            frame = curves_to_frame(doc["damper"], t, c["freq_hz"], np.asarray(c["amplitude_mm_pp"]), fuu[None, :],
+                                    runs=[0])
+            frame["model"] = model
+            frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _store_cables(damper, fits, store, seed, comparison, tests) -> None:
+    """Write the verdict's cable-law posteriors as ``<store>/<damper>/cable-<state>/``."""
+    from pathlib import Path
+
+    groups = state_tests(tests)
+    for (name, state), f in sorted(fits.items()):
+        fit = CableFit(damper=damper.name, state=state, law=f["law"], tests=tuple(groups[state]), effects=(),
+                       result=f["result"], like=f["like"], loo=loo(f["log_lik"]))
+        store_cable(fit, Path(store) / damper.name / f"cable-{state}",
+                    meta={"seed": seed, "made_by": "sbcal diagnose", "damper_values": asdict(damper)},
+                    comparison=comparison)

@@ -1,0 +1,183 @@
+"""Where the model misses: standardised residuals of the run means, the per-line check at a family-wise
+false-alarm rate, bands, the global check, and the statistics that screen the catalogue's effects."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from ..inference.cable_fit import state_tests
+from ..model.extensions import EXTENSIONS
+from ..model.fem import arm_curvatures
+from .fits import _QUANTITIES, DiagnoseConfig
+
+
+__all__ = []
+
+# --- locate --------------------------------------------------------------------------------------
+
+def _check(likes, mu_mean, mu_var, alpha: float, n_params: int):
+    """Standardised residuals per test ``(2, n_freq)``, the off-line thresholds, coverage and the global check.
+
+    The run mean's residual is standardised by the noise-only likelihood's t of the run mean given the
+    runs' deviations (:meth:`TestLikelihood.mean_scale`) widened by the posterior spread of the model;
+    the band of a new run is the likelihood's new-run t (:meth:`TestLikelihood.new_run`), likewise
+    widened. The global check: the normal scores of every z (through its t), squared and summed,
+    against chi-square with the number of values less ``n_params``.
+    """
+    n_lines = sum(2 * lk.freq_hz.size for lk in likes)
+    z, thr, inside, total, scores = [], [], 0, 0, []
+    for lk, m, v in zip(likes, mu_mean, mu_var):
+        mu = m[:, None, :]
+        r = lk.residual(mu)[:, 0]
+        scale, dof = (a[:, 0] for a in lk.mean_scale({}, mu))
+        zt = r / np.sqrt(scale ** 2 + v)
+        z.append(zt)
+        thr.append(stats.t.ppf(1 - alpha / (2 * n_lines), dof))  # (2, n_freq)
+        scores.append(stats.norm.isf(stats.t.sf(np.abs(zt), dof)))  # |z| as the normal deviate of equal tail
+        # 90 % predictive band of a new run against every recorded run
+        _, new_scale, new_dof = (a[:, 0] for a in lk.new_run({}, mu))
+        half = stats.t.ppf(0.95, new_dof) * np.sqrt(new_scale ** 2 + v)
+        dev = lk.y - m[:, None, :]
+        dev[1] = np.remainder(dev[1] + np.pi, 2 * np.pi) - np.pi
+        ok = (np.abs(dev) <= half[:, None, :]) & lk.present[None]
+        inside += int(ok.sum())
+        total += 2 * int(lk.present.sum())
+    u = np.concatenate([s.ravel() for s in scores])
+    u = np.where(np.isfinite(u), u, 40.0)  # a tail beyond double precision: far beyond chance
+    dof = max(u.size - n_params, 1)
+    chi2 = float(np.sum(u ** 2))
+    glob = {"chi2": chi2, "dof": int(dof), "p_value": float(stats.chi2.sf(chi2, dof)), "excess": chi2 - dof}
+    return z, thr, inside / total, glob
+
+
+def _bands(tests, likes, z, thr) -> list:
+    """Neighbouring off lines (a gap of one line allowed) as bands, per test and quantity."""
+    bands = []
+    for t, lk, zt, th in zip(tests, likes, z, thr):
+        th = np.broadcast_to(th, zt.shape)
+        for q, name in enumerate(_QUANTITIES):
+            off = np.flatnonzero(np.abs(zt[q]) > th[q])
+            if off.size == 0:
+                continue
+            for g in np.split(off, np.flatnonzero(np.diff(off) > 2) + 1):
+                lines = np.arange(g[0], g[-1] + 1)
+                bands.append({"test": t, "quantity": name, "f_lo": float(lk.freq_hz[g[0]]),
+                              "f_hi": float(lk.freq_hz[g[-1]]), "lines": [int(i) for i in lines],
+                              "max_abs_z": float(np.max(np.abs(zt[q, lines])))})
+    return bands
+
+
+def _band_sq(bands, tests, z) -> float:
+    index = {t: i for i, t in enumerate(tests)}
+    return float(sum(np.sum(z[index[b["test"]]][_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2) for b in bands))
+
+
+def _band_rms(bands, tests, z) -> list:
+    index = {t: i for i, t in enumerate(tests)}
+    return [float(np.sqrt(np.mean(z[index[b["test"]]][_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2)))
+            for b in bands]
+
+
+def _share(resid, weight_sq, regressor) -> tuple[float, float]:
+    """Share of ``sum w r^2`` explained by ``r ~ c * regressor`` (weighted, through 0), and ``c``."""
+    w = weight_sq
+    num, den = np.sum(w * resid * regressor), np.sum(w * regressor * regressor)
+    if den <= 0:
+        return 0.0, 0.0
+    c = num / den
+    return float(max(0.0, 1 - np.sum(w * (resid - c * regressor) ** 2) / np.sum(w * resid * resid))), float(c)
+
+
+def _signatures(tests, likes, mu_mean, mu_var, z) -> dict:
+    """Statistics of a model's residuals that point at measurement-chain effects."""
+    ac = [np.corrcoef(zt[q, :-1], zt[q, 1:])[0, 1] for zt in z for q in (0, 1) if zt.shape[1] > 2 and np.std(zt[q]) > 0]
+    out = {"lag1_correlation": float(np.nanmean(ac)) if ac else 0.0}
+    ph_r, ph_w, ph_x, c_r, c_w, c_x = [], [], [], [], [], []
+    for lk, m, v in zip(likes, mu_mean, mu_var):
+        r = lk.residual(m[:, None, :])[:, 0]
+        w = 1.0 / (lk.sigma ** 2 / lk.n + v)
+        omega = 2 * np.pi * lk.freq_hz
+        ph_r.append(r[1]), ph_w.append(w[1]), ph_x.append(-omega)
+        reg = -omega ** 2 / np.exp(m[0] + 1j * m[1])  # d ln f / d m: log-magnitude and phase parts
+        c_r.append(r.ravel()), c_w.append(w.ravel()), c_x.append(np.concatenate([reg.real, reg.imag]))
+    share, delay = _share(np.concatenate(ph_r), np.concatenate(ph_w), np.concatenate(ph_x))
+    out["phase_linear"] = {"share": share, "delay_s": delay}
+    share, mass = _share(np.concatenate(c_r), np.concatenate(c_w), np.concatenate(c_x))
+    out["magnitude_omega2"] = {"share": share, "mass_kg": mass}
+    return out
+
+
+def _rocking_signature(fits, tests, likes, mean, var, h: float = 0.05) -> tuple[float, float]:
+    """Share of a cable model's misfit that clamp rocking explains to first order, and its value [rad/m].
+
+    The regressor is ``d ln f / d r`` at ``r = 0`` of the verdict's cable model at its posterior median
+    (central difference, step ``h`` rad/m), per state's tests.
+    """
+    from ..inference.cable_fit import CableForward
+
+    index = {t: i for i, t in enumerate(tests)}
+    r_all, w_all, x_all = [], [], []
+    for (_, state), fit in sorted(fits.items()):
+        like, fwd = fit["like"], fit["like"].model
+        med = {n: np.array([np.median(v)]) for n, v in fit["params"].items()}
+        rocking = CableForward(fwd.law, fwd.amplitude_mm_pp, fwd.segments, ("base_rocking",), fwd.sections)
+        freq = np.concatenate([lk.freq_hz for lk in like.likes])
+        lo, hi = (rocking(like.damper, freq, **med, rocking_rad_per_m=np.array([r]))[0] for r in (-h, h))
+        d = np.log(hi / lo) / (2 * h)  # a ratio near 1: no phase wrap
+        for t, piece in zip(state_tests(tests)[state], np.split(d, np.cumsum([lk.freq_hz.size for lk in like.likes])[:-1])):
+            lk = likes[index[t]]
+            r_all.append(lk.residual(mean[t][:, None, :])[:, 0].ravel())
+            w_all.append((1.0 / (lk.sigma ** 2 / lk.n + var[t])).ravel())
+            x_all.append(np.concatenate([piece.real, piece.imag]))
+    x = np.concatenate(x_all)
+    if not np.all(np.isfinite(x)):
+        return 0.0, 0.0
+    return _share(np.concatenate(r_all), np.concatenate(w_all), x)
+
+
+def _statistics(damper, tests, likes, fits, z) -> dict:
+    """The structure statistics of the baseline's residuals (module docstring)."""
+    out = _signatures(tests, likes, [fits[t]["mu_mean"][0] for t in tests], [fits[t]["mu_var"][0] for t in tests], z)
+    trend = {}  # EJ trend with amplitude within each cable state (constant-amplitude tests)
+    for g, members in sorted(state_tests(tests).items()):
+        amp, ej = [], []
+        for t, lk in zip(tests, likes):
+            a = lk.amplitude_mm_pp
+            if t in members and np.all(np.isfinite(a)) and np.allclose(a, a[0]):
+                amp.append(a[0])
+                ej.append(np.median(fits[t]["params"]["EJ"]))
+        if len(amp) >= 3 and np.ptp(np.log(amp)) > 0:
+            res = stats.linregress(np.log(amp), np.log(ej))
+            tval = res.slope / res.stderr if res.stderr > 0 else np.inf * np.sign(res.slope)
+            trend[g] = {"slope": float(res.slope), "t": float(tval), "n_tests": len(amp)}
+    out["amplitude_trend"] = trend
+    rho = []  # misfit versus the predicted cable curvature (rms over both arms' ends), Spearman per test
+    for t, lk in zip(tests, likes):
+        p = {n: float(np.median(v)) for n, v in fits[t]["params"].items()}
+        chi = arm_curvatures(damper, lk.freq_hz, ej1=p["EJ"], ej2=p["EJ"], beta1=p["beta"], beta2=p["beta"],
+                             xc=(np.nan_to_num(lk.amplitude_mm_pp, nan=1.0) / 2e3)[None, :], a1=p["a1"], a2=p["a2"])
+        curv = np.sqrt(np.mean(np.abs(chi[0]) ** 2, axis=(1, 2)))
+        mis = np.sum(z[tests.index(t)] ** 2, axis=0)
+        if np.ptp(curv) > 0 and np.ptp(mis) > 0:
+            rho.append(stats.spearmanr(curv, mis).statistic)
+    out["curvature_correlation"] = float(np.mean(rho)) if rho else 0.0
+    return out
+
+
+def _screen_one(eid, stat, config) -> tuple[bool, str]:
+    sig = EXTENSIONS[eid].signature
+    if sig == "amplitude_trend":
+        ts = [abs(v["t"]) for v in stat.get("amplitude_trend", {}).values()]
+        t_max = max(ts) if ts else 0.0
+        kept = t_max >= config.screen_t or stat.get("curvature_correlation", 0.0) >= config.screen_corr
+        return kept, f"|t| of the EJ-amplitude trend {t_max:.1f}, curvature correlation {stat.get('curvature_correlation', 0.0):.2f}"
+    if sig in ("phase_linear", "magnitude_omega2"):
+        share = stat[sig]["share"]
+        return share >= config.screen_share, f"share of the misfit explained by the signature {share:.2f}"
+    return stat["lag1_correlation"] >= config.screen_corr, f"lag-1 correlation of the residuals {stat['lag1_correlation']:.2f}"
+
+
+def _screen(stat: dict, config: DiagnoseConfig, effects) -> dict:
+    """Which extensions the structure statistics admit, and why."""
+    return {e: dict(zip(("kept", "why"), _screen_one(e, stat, config))) for e in effects}

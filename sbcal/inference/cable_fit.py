@@ -1,0 +1,448 @@
+"""The cable law of a damper: one hysteresis law per cable state, fitted jointly over all its tests.
+
+A *cable state* is what a test label's suffix says (``1-1-oiled`` is the oiled cable; tests without
+a suffix are the ``dry`` cable). All tests of one state share one cable — ``EJ_min``,
+``beta_material`` and the law's parameters (:mod:`sbcal.model.hysteresis`) — and all tests of one damper
+share its geometry (the mass offsets ``a1``, ``a2``). The forward model is the distributed cable of
+:class:`sbcal.model.cable.CableModel` on the concatenated lines of the state's tests (each test's commanded
+amplitude per line; a sweep restarts at each test), the likelihood the noise-only multivariate t of
+every test's runs (:class:`sbcal.inference.likelihood.TestLikelihood`, no discrepancy: the law must explain the
+runs within the bench's scatter), the posterior the engine's (:func:`sbcal.inference.sampler.sample`). Families
+are compared by PSIS-LOO grouped by run (:func:`sbcal.inference.stats.elpd_difference`).
+
+Measurement-chain effects can ride on top (``effects``: ``sensor_delay``, ``fixture_mass``,
+``base_rocking``, with the boxes of ``priors/extensions.toml``), one value per cable state: the
+diagnosis's secondary effects.
+
+Stored as ``<runs>/<damper>/cable-<state>/posterior.nc`` + ``summary.json`` (:func:`store_cable`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import differential_evolution, least_squares, minimize
+from scipy.stats import qmc
+
+from ..core.errors import InputError
+from ..core.seeds import job_seed, seed_key
+from ..data.cleaning import remove_outlier_runs
+from ..data.labels import cable_state
+from ..model.cable import DEFAULT_SECTIONS, CableModel
+from ..model.damper import Damper
+from ..model.hysteresis import FITTED_LAWS, law_for
+from .calibrate import likelihood_for
+from .likelihood import JointLikelihood
+from .priors import Prior, cable_prior, extension_prior
+from .sampler import SamplerConfig, sample
+from .stats import elpd_difference, loo
+
+
+__all__ = ["SECONDARY", "state_tests", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
+           "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
+
+SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
+"""Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
+their parameters."""
+
+def state_tests(tests) -> dict:
+    """``{state: [tests]}`` in the order the tests come."""
+    out = {}
+    for t in tests:
+        out.setdefault(cable_state(t), []).append(t)
+    return out
+
+
+def compared_laws(laws, tests) -> tuple:
+    """The families of ``laws`` a comparison over ``tests`` uses: those with their ``min_tests`` in every
+    cable state (a family is compared on all of a damper's states or on none)."""
+    fewest = min(len(m) for m in state_tests(tests).values())
+    return tuple(law for law in laws if law_for(law).min_tests <= fewest)
+
+
+def cable_config(ndim: int, *, workers: int = 2, max_steps: int = 8000, max_draws: int = 250) -> SamplerConfig:
+    """The engine's settings for a cable fit (the policy is the engine's; a cap that keeps a stuck
+    fit within minutes: the cable model costs ~1 ms per parameter set)."""
+    return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps, max_draws=max_draws, first_steps=300,
+                         de_population=4 * ndim + 8, de_generations=60, workers=workers)
+
+
+@dataclass(frozen=True)
+class CableForward:
+    """The forward model of a cable state's joint likelihood (picklable).
+
+    ``CableForward(...)(damper, freq_hz, **params) -> complex (n, n_lines)`` on the concatenated lines.
+
+    Attributes
+    ----------
+    law : str
+        A family of :data:`sbcal.model.hysteresis.LAWS`.
+    amplitude_mm_pp : ndarray, shape (n_lines,)
+        Commanded amplitude per line [mm p-p].
+    segments : ndarray of int, shape (n_lines,)
+        Test index per line.
+    effects : tuple of str
+        Secondary effects of :data:`SECONDARY` applied on top.
+    sections : int
+        Gauss sections per arm of the cable model.
+    """
+
+    law: str
+    amplitude_mm_pp: np.ndarray
+    segments: np.ndarray
+    effects: tuple = ()
+    sections: int = DEFAULT_SECTIONS
+    model: CableModel = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "model", CableModel(law_for(self.law), sections=self.sections))
+
+    def _split(self, params):
+        chain = {k: params[k] for k in ("delay_s", "fixture_mass_kg") if k in params}
+        return {k: v for k, v in params.items() if k not in chain}, chain
+
+    def _measured(self, freq_hz, fuu, chain):
+        omega = 2 * np.pi * np.asarray(freq_hz, float)
+        if "fixture_mass_kg" in chain:
+            fuu = fuu - omega**2 * np.asarray(chain["fixture_mass_kg"], float).reshape(-1, 1)
+        if "delay_s" in chain:
+            fuu = fuu * np.exp(-1j * omega * np.asarray(chain["delay_s"], float).reshape(-1, 1))
+        return fuu
+
+    def __call__(self, damper: Damper, freq_hz, **params):
+        cable, chain = self._split(params)
+        fuu = self.model.dynamic_stiffness(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments, **cable)
+        return self._measured(freq_hz, fuu, chain)
+
+    def state(self, damper: Damper, freq_hz, *, continuation: bool = True, **params):
+        """The cable's steady state (sections, curvature range, folds) and the measured ``f``."""
+        cable, chain = self._split(params)
+        st = self.model.state(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments,
+                              continuation=continuation, **cable)
+        return st, self._measured(freq_hz, st.f_uu, chain)
+
+
+def _prior(law: str, damper: Damper, effects, prior_path=None) -> Prior:
+    """The cable family's boxes plus those of the secondary effects (one value per cable state)."""
+    base = cable_prior(law, damper, base_path=prior_path)
+    boxes = {n: base.box(n) for n in base.names}
+    for e in effects:
+        if e not in SECONDARY:
+            raise InputError(f"effect {e!r} does not compose with the cable model; known: {', '.join(SECONDARY)}")
+        ext = extension_prior(e, damper, base_path=prior_path)
+        for n in SECONDARY[e]:
+            boxes[n] = ext.box(n)
+    name = law + "".join(f"+{e}" for e in effects)
+    return Prior.from_boxes(name, boxes)
+
+
+def cable_likelihood(damper: Damper, bench, tests, law: str, *, effects=(), prior_path=None,
+                     z_threshold=None) -> JointLikelihood:
+    """The joint noise-only likelihood of one cable state's tests under a law family."""
+    tests = list(tests)
+    states = {cable_state(t) for t in tests}
+    if len(states) != 1:
+        raise InputError(f"a cable fit takes the tests of one cable state, got {', '.join(sorted(states))}")
+    prior = _prior(law, damper, tuple(effects), prior_path)
+    likes = []
+    for t in tests:
+        td = bench.test(damper.name, t)
+        cleaned = remove_outlier_runs(td) if z_threshold is None else remove_outlier_runs(td, z_threshold)
+        likes.append(likelihood_for(damper, cleaned.data, prior))
+    amp = np.concatenate([lk.amplitude_mm_pp for lk in likes])
+    seg = np.concatenate([np.full(lk.freq_hz.size, i) for i, lk in enumerate(likes)])
+    return JointLikelihood(likes, prior, CableForward(law, amp, seg, tuple(effects)))
+
+
+def _residuals(like: JointLikelihood, z) -> np.ndarray:
+    """Run means minus model over the noise's scale of a mean, every test and line: ``(n, n_values)``
+    at sampled coordinates ``z`` (n, ndim); 1e3 where the model fails."""
+    out = []
+    for lk, mu in zip(like.likes, like.predict(like.prior.params(np.atleast_2d(z)))):
+        r = lk.residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
+        out.append(np.moveaxis(r, 1, 0).reshape(mu.shape[1], -1))
+    r = np.concatenate(out, axis=1)
+    return np.where(np.isfinite(r), r, 1e3)
+
+
+_START_DESIGN = 512  # Sobol points over the box
+_START_BEST = 6  # of which the best are refined
+_START_NFEV = 60  # Gauss-Newton iterations per refinement
+_START_DE = (6, 60)  # differential evolution: population per dimension, generations
+
+
+def _polish(like: JointLikelihood, z0) -> tuple[np.ndarray, float]:
+    """L-BFGS-B ascent of the log-posterior within the box from ``z0`` (value and central-difference
+    gradient in one batched call); ``(z, log-posterior)``."""
+    prior = like.prior
+    lo, hi = prior.z_lower, prior.z_upper
+    h = 1e-6 * (hi - lo)
+    eye = np.diag(h)
+
+    def cost(z):
+        lp = like(np.vstack([z, z + eye, z - eye]))
+        lp = np.where(np.isfinite(lp), lp, -1e100)
+        d = prior.ndim
+        return -lp[0], -(lp[1:d + 1] - lp[d + 1:]) / (2 * h)
+
+    z0 = np.clip(z0, lo + 2 * h, hi - 2 * h)
+    res = minimize(cost, z0, jac=True, method="L-BFGS-B", bounds=list(zip(lo + h, hi - h)), options={"maxiter": 300})
+    z = res.x if -res.fun >= like(z0[None])[0] else z0
+    return z, float(like(z[None])[0])
+
+
+def cable_start(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
+    """The start of a cable fit in sampled coordinates ``(ndim,)``: the highest log-posterior of
+    several local ascents (:func:`_polish`) from distinct places of the box.
+
+    Candidates: Gauss-Newton least-squares descents (trust region within the box, soft-L1 loss on
+    the run means' standardised residuals, forward-difference Jacobian in one batched model call)
+    from the best points of a Sobol design, and the best of a differential-evolution search on the
+    log-posterior. Each kind alone stops in a wrong place on some data: differential evolution on a
+    plateau where a cut-off runs to its bound and the law stops changing within the bench's
+    curvatures (damper1's dry cable under ``iwan5``: ``chi_macro`` at 1/m, 720 below the mode in
+    log-posterior; two of four ensembles stayed there), least squares in a local mode of the
+    least-squares cost that is not the posterior's (``bouc_wen``, whose misfit is many noise scales,
+    where the robust t likelihood weighs residuals differently).
+    """
+    prior = like.prior
+    lo, hi = prior.z_lower, prior.z_upper
+    s_sobol, s_de = rng.spawn(2)
+    z = lo + (hi - lo) * qmc.Sobol(prior.ndim, seed=s_sobol).random(_START_DESIGN)
+    lp = np.concatenate([like(z[i:i + 128]) for i in range(0, len(z), 128)])
+    step = 1e-6 * (hi - lo)
+
+    def jac(zz):
+        h = np.where(zz + step <= hi, step, -step)
+        r = _residuals(like, np.vstack([zz, zz + np.diag(h)]))
+        return ((r[1:] - r[0]) / h[:, None]).T
+
+    candidates = []
+    for z0 in z[np.argsort(-lp)[:_START_BEST]]:
+        z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        res = least_squares(lambda zz: _residuals(like, zz)[0], z0, jac=jac, bounds=(lo, hi), loss="soft_l1",
+                            f_scale=3.0, max_nfev=_START_NFEV)
+        candidates.append(res.x)
+
+    def cost(zt):  # scipy passes (ndim, S) when vectorized
+        v = like(np.atleast_2d(zt.T).reshape(-1, prior.ndim))
+        return np.where(np.isfinite(v), -v, 1e100)
+
+    per_dim, generations = _START_DE
+    de = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=per_dim, maxiter=generations, tol=1e-6,
+                                seed=s_de, polish=False, vectorized=True, updating="deferred", init="sobol")
+    candidates.append(de.x)
+    best = max((_polish(like, c) for c in candidates), key=lambda t: t[1])
+    return best[0]
+
+
+@dataclass(frozen=True)
+class CableFit:
+    """One cable state's posterior under one law family.
+
+    Attributes
+    ----------
+    damper, state, law : str
+    tests : tuple of str
+    effects : tuple of str
+    result : SampleResult
+    like : JointLikelihood
+    loo : sbcal.inference.stats.Loo
+        PSIS-LOO grouped by run (runs of all tests, in test order).
+    """
+
+    damper: str
+    state: str
+    law: str
+    tests: tuple
+    effects: tuple
+    result: object
+    like: object
+    loo: object
+
+    def median(self) -> dict:
+        return {n: float(np.median(v)) for n, v in self.result.draws.items()}
+
+
+def cable_seed(seed, damper: str, state: str, law: str, effects=()) -> np.random.SeedSequence:
+    """The stream of one cable fit, keyed by what it is (:func:`sbcal.core.seeds.job_seed`): ``sbcal cable``,
+    ``sbcal diagnose`` and ``sbcal run`` draw the same numbers for the same seed and data."""
+    return job_seed(seed, "cable", damper, state, law, *effects)
+
+
+def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config: SamplerConfig | None = None,
+                 start=None, progress: str | None = None):
+    """The cable-law fit, the one every command uses: :func:`cable_start`, then the engine.
+
+    Parameters
+    ----------
+    like : JointLikelihood
+        A cable state's likelihood (:func:`cable_likelihood`).
+    seed : numpy.random.SeedSequence
+        The fit's stream (:func:`cable_seed`); the start and the engine each get a child of it.
+    config : SamplerConfig, optional
+        Default :func:`cable_config`.
+    start : dict, optional
+        Natural values by name to polish the mode from (default: :func:`cable_start`).
+    progress : str, optional
+
+    Returns
+    -------
+    SampleResult
+    """
+    s_start, s_sample = seed.spawn(2)
+    if start is None:
+        start = cable_start(like, np.random.default_rng(s_start))
+    return sample(like, seed=s_sample, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
+
+
+def fit_cable(damper: Damper, bench, tests, law: str, *, seed: int, effects=(), workers: int = 2,
+              max_steps: int = 8000, max_draws: int = 250, start=None, prior_path=None,
+              progress: str | None = None) -> CableFit:
+    """Sample one cable state's law (see the module docstring).
+
+    Parameters
+    ----------
+    damper : Damper
+    bench : BenchData
+    tests : sequence of str
+        The tests of one cable state.
+    law : str
+        A fitted family (:data:`sbcal.model.hysteresis.FITTED_LAWS`).
+    seed : int
+        The user's seed; the fit's stream is :func:`cable_seed` of it.
+    effects : sequence of str
+        Secondary effects on top (:data:`SECONDARY`).
+    workers, max_steps, max_draws : int
+        As :func:`cable_config` (the draws do not depend on ``workers``).
+    start : dict, optional
+        Natural values by name to polish the mode from (default: :func:`cable_start`).
+    prior_path : path-like, optional
+        The prior file of the base geometry boxes (``--priors``).
+    progress : str, optional
+    """
+    tests = tuple(tests)
+    like = cable_likelihood(damper, bench, tests, law, effects=effects, prior_path=prior_path)
+    state = cable_state(tests[0])
+    config = cable_config(like.prior.ndim, workers=workers, max_steps=max_steps, max_draws=max_draws)
+    res = sample_cable(like, seed=cable_seed(seed, damper.name, state, law, tuple(effects)), config=config,
+                       start=start, progress=progress)
+    return CableFit(damper=damper.name, state=state, law=law, tests=tests, effects=tuple(effects), result=res,
+                    like=like, loo=loo(res.log_likelihood))
+
+
+def compare_families(fits: dict) -> dict:
+    """The best family by PSIS-LOO summed over cable states, and each family's difference to it.
+
+    ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law). Returns
+    ``{"best": law, "families": {law: {"elpd", "se", "delta_elpd", "se_delta"}}}``.
+    """
+    pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
+    elpd = {law: float(p.sum()) for law, p in pointwise.items()}
+    best = max(elpd, key=elpd.get)
+    out = {}
+    for law, p in pointwise.items():
+        d, se = elpd_difference(pointwise[best], p)
+        out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se}
+    return {"best": best, "families": out}
+
+
+def law_curves(law: str, draws: dict, chi) -> tuple[np.ndarray, np.ndarray]:
+    """The cable law's equivalent rigidity ``Re EJ*`` [N m^2] and loss factor ``Im EJ* / Re EJ*`` at
+    curvature amplitudes ``chi`` [1/m], per posterior draw: two arrays (n_draws, len(chi))."""
+    names = law_for(law).parameter_names
+    chi = np.asarray(chi, float)[None, :]
+    col = {k: np.asarray(v, float).reshape(-1, 1) for k, v in draws.items()}
+    slip = law_for(law).slip_rigidity(chi, **{k: col[k] for k in names})
+    ej = col["EJ_min"] * (1 + 1j * col["beta_material"]) + slip
+    return ej.real, ej.imag / ej.real
+
+
+def _curvature_ranges(fit: CableFit) -> dict:
+    """Per test, the range of arm curvature amplitudes [1/m] the posterior median's steady state
+    reached over its lines, and the lines with two steady states (folds)."""
+    like = fit.like
+    med = {k: np.array([v]) for k, v in fit.median().items()}
+    st, _ = like.model.state(like.damper, like.freq_hz, continuation=True, **med)
+    out, start = {}, 0
+    for t, lk in zip(fit.tests, like.likes):
+        n = lk.freq_hz.size
+        cr = st.curvature_range[0, start:start + n]  # (lines, 2): least and largest over both arms
+        out[t] = {"curvature_min": float(cr[:, 0].min()), "curvature_max": float(cr[:, 1].max()),
+                  "fold_hz": [float(f) for f in lk.freq_hz[st.fold[0, start:start + n]]],
+                  "not_converged_hz": [float(f) for f in lk.freq_hz[~st.converged[0, start:start + n]]]}
+        start += n
+    return out
+
+
+def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None) -> dict:
+    """Write ``posterior.nc`` + ``summary.json`` of a cable fit into ``directory``; returns the summary.
+
+    The netCDF holds the posterior, the log-probability, the pointwise log-likelihood by run
+    (``runs``, dim ``obs`` with ``obs_test``/``obs_run`` coordinates), the lines (frequency, amplitude,
+    test) and the run means observed. The summary adds the law, the tests, each test's curvature range
+    and folds, the convergence and (with ``comparison``) the family comparison.
+    """
+    from ..core._io import write_json
+    from .runs import parameter_summary, versions, write_inference_data
+
+    res, like = fit.result, fit.like
+    obs_test = np.concatenate([np.full(lk.y.shape[1], t) for t, lk in zip(fit.tests, like.likes)])
+    freq = like.freq_hz
+    line_test = np.concatenate([np.full(lk.freq_hz.size, t) for t, lk in zip(fit.tests, like.likes)])
+    ybar = np.concatenate([lk.ybar for lk in like.likes], axis=1)
+    summary = {
+        "damper": fit.damper, "state": fit.state, "law": fit.law, "effects": list(fit.effects),
+        "tests": list(fit.tests), "parameters": parameter_summary(res), **res.convergence_dict(),
+        "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
+        "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
+        "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
+        "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
+    }
+    groups = {
+        "posterior": dict(res.draws), "sample_stats": {"lp": res.log_prob}, "log_likelihood": {"runs": res.log_likelihood},
+        "constant_data": {"freq_hz": freq, "amplitude_mm_pp": like.model.amplitude_mm_pp, "line_test": line_test,
+                          "obs_test": obs_test},
+        "observed_data": {"logmag_mean": ybar[0], "phase_mean": ybar[1]},
+        "dims": {"runs": ["obs"], "freq_hz": ["line"], "amplitude_mm_pp": ["line"], "line_test": ["line"],
+                 "obs_test": ["obs"], "logmag_mean": ["line"], "phase_mean": ["line"]},
+    }
+    d = Path(directory)
+    write_inference_data(d / "posterior.nc", groups, attrs={"summary": json.dumps(summary, sort_keys=True)})
+    write_json(d / "summary.json", summary, indent=1)
+    return summary
+
+
+def read_cable(directory) -> tuple[dict, dict]:
+    """``(summary, draws)`` of a stored cable fit (``draws``: name -> flattened posterior draws)."""
+    from .runs import read_summary
+    from .stats import read_netcdf
+
+    s = read_summary(directory)
+    if s is None or "law" not in s:
+        raise InputError(f"{directory}: no cable-law run here (summary.json missing or not a cable fit; "
+                         "'sbcal cable' or 'sbcal run' writes one)")
+    post = read_netcdf(Path(directory) / "posterior.nc").posterior
+    return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
+
+
+def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=None, seed=0, prior_path=None,
+                     workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
+    """Every cable state of a damper under every family (default: :func:`compared_laws` of
+    :data:`FITTED_LAWS`); ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of
+    :func:`compare_families`."""
+    tests = list(bench.tests(damper.name) if tests is None else tests)
+    groups = state_tests(tests)
+    laws = compared_laws(FITTED_LAWS, tests) if laws is None else tuple(laws)
+    fits = {}
+    for law in laws:
+        fits[law] = {}
+        for state, members in sorted(groups.items()):
+            label = f"{damper.name} cable {state} ({law})" if progress else None
+            fits[law][state] = fit_cable(damper, bench, members, law, seed=seed, prior_path=prior_path, progress=label,
+                                         workers=workers)
+    return fits, compare_families(fits)
+

@@ -1,0 +1,275 @@
+"""Prior boxes (``priors/*.toml``, schema in ``docs/calibration.md``) and the sampled coordinates.
+
+A :class:`Prior` is the product of independent uniform or log-uniform boxes over the parameters
+of one named set (``theta1`` ...) plus the likelihood's model-error scales, reached by name. The sampler works in
+coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter and
+``z = log(x)`` for a log-uniform one, so the log-prior is 0 inside the box and ``-inf`` outside.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from ..core._io import read_toml
+from ..core.errors import InputError
+from ..model.damper import Damper
+from ..model.fem import PARAMETER_NAMES
+
+
+__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "cable_prior"]
+
+_DISTS = ("uniform", "loguniform")
+_MODEL_ERROR = ("sigma_mag", "sigma_phase")
+
+
+def canonical_order(names) -> tuple:
+    """Parameter names in sbcal's canonical order, whatever order a prior file lists them in.
+
+    The forward model's vocabulary (:data:`sbcal.model.fem.PARAMETER_NAMES`) first in its own order, then
+    any other name (extension and law parameters) alphabetically, then the model-error scales. The
+    sampler's coordinates follow this order, so permuting a set in a prior file changes nothing.
+    """
+    rank = {n: i for i, n in enumerate(PARAMETER_NAMES)}
+    names = list(dict.fromkeys(names))
+    return tuple(sorted(names, key=lambda n: (n in _MODEL_ERROR, _MODEL_ERROR.index(n) if n in _MODEL_ERROR else 0,
+                                              n not in rank, rank.get(n, 0), n)))
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Independent boxes over named parameters, in natural units.
+
+    Attributes
+    ----------
+    paramset : str
+        Name of the set (e.g. ``"theta1"``).
+    names : tuple of str
+        The sampled parameters in canonical order (:func:`canonical_order`): model parameters first,
+        then ``sigma_mag``, ``sigma_phase`` where the set has them.
+    log_scale : ndarray of bool, shape (ndim,)
+        True where the box is log-uniform (sampled as ``log x``).
+    lower, upper : ndarray, shape (ndim,)
+        Box bounds in natural units.
+
+    Construct with :meth:`from_boxes` (any order of names); code outside this class reaches a
+    parameter by its name (:meth:`params`, :meth:`z_of`), never by its position.
+    """
+
+    paramset: str
+    names: tuple
+    log_scale: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @classmethod
+    def from_boxes(cls, paramset: str, boxes: dict) -> "Prior":
+        """``boxes``: name -> ``(log_scale, lower, upper)``, in any order."""
+        names = canonical_order(boxes)
+        rows = [boxes[n] for n in names]
+        return cls(paramset=paramset, names=names, log_scale=np.array([bool(r[0]) for r in rows]),
+                   lower=np.array([float(r[1]) for r in rows]), upper=np.array([float(r[2]) for r in rows]))
+
+    @property
+    def ndim(self) -> int:
+        return len(self.names)
+
+    @property
+    def model_names(self) -> tuple:
+        """The forward-model parameters (without the model-error scales)."""
+        return tuple(n for n in self.names if n not in _MODEL_ERROR)
+
+    def __post_init__(self):
+        if tuple(self.names) != canonical_order(self.names):
+            raise ValueError(f"Prior names must be in canonical order (use Prior.from_boxes): {self.names}")
+        # the box in sampled coordinates, computed once: log_prob runs on every sampler step
+        for name, bound in (("z_lower", self.lower), ("z_upper", self.upper)):
+            z = np.where(self.log_scale, np.log(np.where(self.log_scale, bound, 1.0)), bound)
+            object.__setattr__(self, name, z)
+
+    def box(self, name: str) -> tuple[bool, float, float]:
+        """``(log_scale, lower, upper)`` of one parameter."""
+        i = self.names.index(name)
+        return bool(self.log_scale[i]), float(self.lower[i]), float(self.upper[i])
+
+    def to_natural(self, z) -> np.ndarray:
+        """Sampled coordinates ``(n, ndim)`` -> natural units ``(n, ndim)``."""
+        z = np.atleast_2d(z)
+        return np.where(self.log_scale, np.exp(z), z)
+
+    def to_z(self, x) -> np.ndarray:
+        """Natural units ``(n, ndim)`` -> sampled coordinates."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.log_scale, np.log(x), x)
+
+    def params(self, z) -> dict:
+        """Sampled coordinates ``(n, ndim)`` -> ``{name: natural values (n,)}``."""
+        x = self.to_natural(z)
+        return {n: x[:, i] for i, n in enumerate(self.names)}
+
+    def z_of(self, params: dict) -> np.ndarray:
+        """``{name: natural value(s)}`` (every parameter of the prior) -> sampled coordinates ``(n, ndim)``."""
+        missing = [n for n in self.names if n not in params]
+        if missing:
+            raise KeyError(f"no value for {', '.join(missing)}")
+        cols = np.broadcast_arrays(*(np.atleast_1d(np.asarray(params[n], float)) for n in self.names))
+        return self.to_z(np.stack(cols, axis=1))
+
+    def log_prob(self, z) -> np.ndarray:
+        """Log-density in ``z`` (0 inside the box, ``-inf`` outside): shape ``(n,)``."""
+        z = np.atleast_2d(z)
+        inside = np.all((z >= self.z_lower) & (z <= self.z_upper), axis=1)
+        return np.where(inside, 0.0, -np.inf)
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` draws in ``z``, shape ``(n, ndim)``."""
+        return rng.uniform(self.z_lower, self.z_upper, size=(n, self.ndim))
+
+    def as_dict(self) -> dict:
+        """JSON-friendly description (stored with every run)."""
+        return {"paramset": self.paramset, "parameters": {
+            n: {"dist": "loguniform" if s else "uniform", "lower": float(lo), "upper": float(hi)}
+            for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
+
+
+def _default_path(name="default.toml"):
+    return resources.files("sbcal") / "priors" / name
+
+
+def _read(path, bundled="default.toml") -> tuple[dict, str]:
+    if path is None:
+        with resources.as_file(_default_path(bundled)) as p:
+            return read_toml(p), f"priors/{bundled}"
+    return read_toml(path), str(Path(path))
+
+
+def parameter_sets(path=None) -> dict:
+    """Named parameter sets of a prior file: ``{"theta1": ["beta", "a1", "a2", "EJ"], ...}``."""
+    doc, src = _read(path)
+    sets = doc.get("sets")
+    if not isinstance(sets, dict) or not sets:
+        raise InputError(f"{src}: table '[sets]': missing or empty")
+    return {k: list(v) for k, v in sets.items()}
+
+
+def _bounds(src: str, key: str, spec: dict, name: str, damper: Damper) -> tuple[bool, float, float]:
+    if not isinstance(spec, dict):
+        raise InputError(f"{src}: key '{key}': expected a table")
+    dist = spec.get("dist")
+    if dist not in _DISTS:
+        raise InputError(f"{src}: key '{key}.dist': expected one of {', '.join(_DISTS)}, got {dist!r}")
+    ways = [w for w in ("lower", "relative", "fraction_of_ej_static") if w in spec]
+    if len(ways) != 1:
+        raise InputError(f"{src}: key '{key}': give exactly one of lower/upper, relative, fraction_of_ej_static")
+
+    def num(k, v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{src}: key '{key}.{k}': expected a finite number, got {v!r}")
+        return float(v)
+
+    if ways[0] == "lower":
+        if "upper" not in spec:
+            raise InputError(f"{src}: key '{key}.upper': missing")
+        lo, hi = num("lower", spec["lower"]), num("upper", spec["upper"])
+    elif ways[0] == "relative":
+        r = num("relative", spec["relative"])
+        if not 0 <= r < 1:
+            raise InputError(f"{src}: key '{key}.relative': must be in [0, 1), got {r}")
+        nominal = getattr(damper, name)
+        lo, hi = sorted((nominal * (1 - r), nominal * (1 + r)))
+    else:
+        f = spec["fraction_of_ej_static"]
+        if not isinstance(f, list) or len(f) != 2:
+            raise InputError(f"{src}: key '{key}.fraction_of_ej_static': expected [lo, hi]")
+        lo, hi = (num("fraction_of_ej_static", v) * damper.ej_static for v in f)
+    if not lo < hi:
+        raise InputError(f"{src}: key '{key}': lower {lo:g} must be < upper {hi:g}")
+    if dist == "loguniform" and lo <= 0:
+        raise InputError(f"{src}: key '{key}': a log-uniform box needs lower > 0, got {lo:g}")
+    return dist == "loguniform", lo, hi
+
+
+def load_prior(paramset: str, damper: Damper, path=None) -> Prior:
+    """The prior of one named parameter set for one damper.
+
+    Parameters
+    ----------
+    paramset : str
+        A name from the file's ``[sets]`` (``theta1``, ``theta2``, ``theta3``, ``poly2``..``poly4``).
+    damper : Damper
+        Supplies nominal values (relative boxes) and ``ej_static``.
+    path : path-like, optional
+        A prior file; default the bundled ``priors/default.toml``.
+    """
+    doc, src = _read(path)
+    sets = parameter_sets(path)
+    if paramset not in sets:
+        raise InputError(f"{src}: parameter set {paramset!r} not in [sets] ({', '.join(sets)})")
+    names = list(sets[paramset])
+    for n in names:
+        if n not in PARAMETER_NAMES:
+            raise InputError(f"{src}: key 'sets.{paramset}': unknown parameter {n!r}")
+    table = doc.get("parameters", {})
+    errors = doc.get("model_error", {})
+    if len(set(names)) != len(names):
+        raise InputError(f"{src}: key 'sets.{paramset}': a parameter is listed twice")
+    boxes = {}
+    for n in names:
+        if n not in table:
+            raise InputError(f"{src}: key 'parameters.{n}': missing (used by set {paramset!r})")
+        boxes[n] = _bounds(src, f"parameters.{n}", table[n], n, damper)
+    for n in _MODEL_ERROR:
+        if n not in errors:
+            raise InputError(f"{src}: key 'model_error.{n}': missing")
+        boxes[n] = _bounds(src, f"model_error.{n}", errors[n], n, damper)
+    return Prior.from_boxes(paramset, boxes)
+
+
+def extension_prior(effect: str, damper: Damper, path=None, base_path=None, *, bundled: str = "extensions.toml") -> Prior:
+    """The prior of a physics extension of ``sbcal diagnose`` (or of its ``baseline``).
+
+    The extension keeps the ``base`` parameters of the default prior file (their boxes) and adds
+    its own; there are no model-error scales: the diagnosis's likelihood is the noise model's.
+
+    Parameters
+    ----------
+    effect : str
+        ``"baseline"`` or a catalogue id (``priors/extensions.toml``).
+    damper : Damper
+    path : path-like, optional
+        An extensions file; default the bundled ``priors/extensions.toml`` (``bundled``).
+    base_path : path-like, optional
+        The prior file of the ``base`` parameters; default ``priors/default.toml``.
+    bundled : str
+        The bundled file read when ``path`` is None (:func:`cable_prior` reads ``cable.toml``).
+    """
+    doc, src = _read(path, bundled)
+    spec = doc.get(effect)
+    if not isinstance(spec, dict):
+        raise InputError(f"{src}: table '[{effect}]': missing")
+    base = spec.get("base", [])
+    if not isinstance(base, list) or not all(isinstance(n, str) for n in base):
+        raise InputError(f"{src}: key '{effect}.base': expected a list of parameter names")
+    base_doc, base_src = _read(base_path)
+    table = base_doc.get("parameters", {})
+    boxes = {}
+    for n in base:
+        if n not in PARAMETER_NAMES or n not in table:
+            raise InputError(f"{src}: key '{effect}.base': {n!r} is not a parameter of {base_src}")
+        boxes[n] = _bounds(base_src, f"parameters.{n}", table[n], n, damper)
+    for n, box in spec.get("parameters", {}).items():
+        if n in boxes:
+            raise InputError(f"{src}: key '{effect}.parameters.{n}': also a base parameter")
+        boxes[n] = _bounds(src, f"{effect}.parameters.{n}", box, n, damper)
+    return Prior.from_boxes(effect, boxes)
+
+
+def cable_prior(law: str, damper: Damper, path=None, base_path=None) -> Prior:
+    """The prior of a cable law family (``priors/cable.toml``): the cable's and the law's parameters
+    plus the ``base`` geometry of the default prior file (same schema as :func:`extension_prior`)."""
+    return extension_prior(law, damper, path, base_path, bundled="cable.toml")

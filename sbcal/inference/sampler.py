@@ -1,0 +1,580 @@
+"""The sampling engine: every posterior in sbcal is drawn here, and this is the only user of emcee.
+
+One entry point, :func:`sample`, takes a *target* — a log-density over named parameters with its
+prior — a :class:`SamplerConfig` and a seed, and returns a frozen :class:`SampleResult`. A target is any
+picklable object with
+
+- ``prior``: a :class:`sbcal.inference.priors.Prior` (names, boxes, sampled coordinates ``z``);
+- ``__call__(z) -> (n,)``: the log-posterior at a batch of sampled coordinates ``(n, ndim)``
+  (emcee's ``log_prob`` with ``vectorize=True``), ``-inf`` outside the support;
+- optionally ``pointwise_log_likelihood(params) -> (n, n_points)`` with ``params`` by name: then the
+  result carries it on the kept draws, for PSIS-LOO.
+
+Steps:
+
+1. **Start**: the posterior mode, from a differential-evolution search over the prior box (or the
+   caller's ``start``), polished by L-BFGS-B.
+2. **Ensembles**: ``n_ensembles`` independent ensembles of walkers, each started from its own seed
+   (its walkers drawn from the Laplace approximation at the mode; from each parameter's own
+   curvature where the Hessian is not negative definite, a small ball where even that fails) and
+   moved within itself (:class:`_Ensembles`) by differential evolution and, in a fraction
+   ``independence`` of the proposals, by an independence move: a draw from a multivariate t fitted
+   to the ensemble's own kept steps at the end of the previous round (the Laplace approximation in
+   the first round, where it is negative definite). All are held side by side in one
+   ``emcee.EnsembleSampler`` so that one vectorised log-density call advances every ensemble
+   (``workers > 1`` splits them over processes). Each ensemble draws from its own generator and
+   sees only its own steps, so the ensembles are independent chains and the draws do not depend on
+   the number of workers.
+3. **The convergence policy** (:data:`POLICY`, the one place it is set): after discarding the first
+   ``burn_fraction`` of every chain, the kept run must be at least ``tau_factor`` integrated
+   autocorrelation times of every parameter long, and across the ensembles R-hat <= 1.01 and bulk and
+   tail ESS >= 400 for every parameter. Rounds continue until it holds or ``max_steps`` (each round
+   to the length the autocorrelation asks for, at most doubling the run: the estimate falls as the
+   proposals improve); a run that stops at the cap is marked ``converged = False`` with the reason.
+   The independence proposals change only between rounds, from the past steps, so every round's
+   kernel leaves the posterior invariant (a finite adaptation; what it costs in the first rounds is
+   what the burn-in and the diagnostics see).
+4. **Draws**: each ensemble is a chain; its draws are its walkers' thinned steps, walker after walker
+   (thinned by at least half the largest autocorrelation time, and enough to keep ``max_draws``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+
+import emcee
+import numpy as np
+from scipy.optimize import differential_evolution, minimize
+
+from ..core.progress import progress_bar
+from ..core.workers import default_workers, one_blas_thread
+from .stats import convergence
+
+
+__all__ = ["POLICY", "SamplerConfig", "SampleResult", "sample"]
+
+POLICY = {"min_ensembles": 4, "rhat_max": 1.01, "ess_min": 400.0, "tau_factor": 50.0}
+"""sbcal's convergence rule. A configuration may be stricter; a looser ``tau_factor`` needs a stated
+reason (``SamplerConfig.tau_reason``), which every result carries into its output."""
+
+_BIG = 1e100  # the point fit's cost outside the support (differential evolution needs a finite one)
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """Sampler settings (stored with every run).
+
+    Attributes
+    ----------
+    nwalkers : int
+        Walkers per ensemble (raised to ``2 ndim + 2`` where needed, and to an even number).
+    n_ensembles : int
+        Independently seeded ensembles, the chains of R-hat (at least ``POLICY["min_ensembles"]``).
+    tau_factor : float
+        The kept run must be this many autocorrelation times long (``POLICY["tau_factor"]``; less
+        only with ``tau_reason``).
+    tau_reason : str
+        Why a looser ``tau_factor`` is acceptable here; shown wherever the result is reported.
+    burn_fraction : float
+        Fraction of each chain discarded as burn-in.
+    first_steps : int
+        Steps of the first round (then rounds are sized from the autocorrelation estimate).
+    max_steps : int
+        Cap on steps per ensemble; a run that stops there is not converged.
+    max_draws : int
+        Draws kept per ensemble (the thinning grows to keep at most this many).
+    de_population, de_generations : int
+        The differential-evolution search for the start (when the caller gives none).
+    workers : int
+        Processes for the ensembles (the draws do not depend on it); 1 runs them in this process.
+    independence : float
+        From the second round on, the fraction of proposals drawn independently of the walker from a
+        multivariate t fitted to the ensemble's own kept steps (:class:`_Ensembles`); 0 moves by
+        differential evolution alone.
+    """
+
+    nwalkers: int = 24
+    n_ensembles: int = 4
+    tau_factor: float = POLICY["tau_factor"]
+    tau_reason: str = ""
+    burn_fraction: float = 0.2
+    first_steps: int = 400
+    max_steps: int = 20000
+    max_draws: int = 1000
+    de_population: int = 48
+    de_generations: int = 150
+    workers: int = field(default_factory=default_workers)
+    independence: float = 0.5
+
+    def __post_init__(self):
+        if self.n_ensembles < POLICY["min_ensembles"]:
+            raise ValueError(f"n_ensembles {self.n_ensembles}: the policy needs >= {POLICY['min_ensembles']}")
+        if self.tau_factor < POLICY["tau_factor"] and not self.tau_reason:
+            raise ValueError(f"tau_factor {self.tau_factor} < {POLICY['tau_factor']} needs a stated tau_reason")
+        if not 0 <= self.burn_fraction < 1 or self.first_steps < 1 or self.max_steps < self.first_steps:
+            raise ValueError("burn_fraction in [0, 1), 1 <= first_steps <= max_steps")
+        if not 0 <= self.independence < 1:
+            raise ValueError(f"independence {self.independence}: a fraction in [0, 1)")
+
+    def policy(self) -> str:
+        """The rule this configuration applies, in words (stored and shown with every result)."""
+        text = (f">= {self.n_ensembles} independently seeded ensembles, R-hat <= {POLICY['rhat_max']} and bulk "
+                f"and tail ESS >= {POLICY['ess_min']:.0f} for every parameter, run >= {self.tau_factor:g} "
+                f"autocorrelation times (at most {self.max_steps} steps)")
+        return text + (f"; {self.tau_factor:g} tau because {self.tau_reason}" if self.tau_reason else "")
+
+
+@dataclass(frozen=True)
+class SampleResult:
+    """A posterior: draws by parameter name and how they were made.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Parameters, in the prior's (canonical) order.
+    draws : dict of str -> ndarray, shape (n_chains, n_draws)
+        Natural units; a chain is one ensemble, its draws its walkers' thinned steps, walker after walker.
+    log_prob : ndarray, shape (n_chains, n_draws)
+    log_likelihood : ndarray, shape (n_chains, n_draws, n_points), or None
+        The target's pointwise log-likelihood at the draws (when it has one).
+    tau : dict of str -> float
+        Integrated autocorrelation time [steps], the largest over the ensembles.
+    acceptance : ndarray, shape (n_chains,)
+        Mean acceptance fraction of each ensemble.
+    r_hat, ess_bulk, ess_tail : dict of str -> float
+        Across the chains (rank-normalised split R-hat; ArviZ's bulk and tail ESS).
+    n_steps, burn, thin : int
+        Steps per ensemble, of which the first ``burn`` are discarded; kept steps thinned by ``thin``.
+    converged : bool
+    reason : str
+        Why not converged ('' when converged).
+    start : dict of str -> float
+        Where the ensembles started (the polished mode).
+    wall_s : float
+    config : SamplerConfig
+    """
+
+    names: tuple
+    draws: dict
+    log_prob: np.ndarray
+    log_likelihood: np.ndarray | None
+    tau: dict
+    acceptance: np.ndarray
+    r_hat: dict
+    ess_bulk: dict
+    ess_tail: dict
+    n_steps: int
+    burn: int
+    thin: int
+    converged: bool
+    reason: str
+    start: dict
+    wall_s: float
+    config: SamplerConfig
+
+    @property
+    def n_chains(self) -> int:
+        return self.log_prob.shape[0]
+
+    def flat(self) -> dict:
+        """Draws pooled over chains: ``{name: (n_chains * n_draws,)}``."""
+        return {n: v.reshape(-1) for n, v in self.draws.items()}
+
+    def quantiles(self, name: str, q=(0.05, 0.5, 0.95)) -> np.ndarray:
+        return np.quantile(self.draws[name], q)
+
+    @property
+    def r_hat_max(self) -> float:
+        return float(max(self.r_hat.values()))
+
+    @property
+    def ess_bulk_min(self) -> float:
+        return float(min(self.ess_bulk.values()))
+
+    @property
+    def ess_tail_min(self) -> float:
+        return float(min(self.ess_tail.values()))
+
+    def convergence_dict(self) -> dict:
+        """What JSON outputs carry about convergence."""
+        return {"converged": self.converged, "reason": self.reason, "r_hat_max": self.r_hat_max,
+                "ess_bulk_min": self.ess_bulk_min, "ess_tail_min": self.ess_tail_min,
+                "tau_max": float(max(self.tau.values())), "n_steps": self.n_steps, "n_chains": self.n_chains,
+                "policy": self.config.policy()}
+
+    def config_dict(self) -> dict:
+        return asdict(self.config)
+
+
+# --- the start -----------------------------------------------------------------------------
+
+def _cost(target):
+    def cost(zt):
+        zt = np.atleast_2d(zt.T).reshape(-1, target.prior.ndim)  # scipy passes (ndim, S) when vectorized
+        lp = target(zt)
+        return np.where(np.isfinite(lp), -lp, _BIG)
+    return cost
+
+
+def _start(target, start, rng, config) -> np.ndarray:
+    """The posterior mode in ``z``: differential evolution over the box (or ``start``), then L-BFGS-B."""
+    prior = target.prior
+    lo, hi = prior.z_lower, prior.z_upper
+    cost = _cost(target)
+    if start is None:
+        res = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=max(1, math.ceil(config.de_population / prior.ndim)),
+                                     maxiter=config.de_generations, tol=1e-6, seed=rng, polish=False, vectorized=True,
+                                     updating="deferred", init="sobol")
+        z0 = res.x
+    else:
+        z0 = prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float)
+    width = hi - lo
+    z0 = np.clip(z0, lo + 1e-9 * width, hi - 1e-9 * width)
+    f0 = cost(z0[:, None])[0]
+    res = minimize(lambda z: cost(z[:, None])[0], z0, method="L-BFGS-B", bounds=list(zip(lo, hi)),
+                   options={"maxiter": 1000})
+    return res.x if np.isfinite(res.fun) and res.fun <= f0 else z0
+
+
+def _laplace(target, z0) -> tuple:
+    """``(cov, full)``: the covariance of the Laplace approximation at the mode ``z0`` (finite-difference
+    Hessian of the log-density in one batched call, a few steps inside the box where the mode is on a
+    bound) and True; where the Hessian is not negative definite, the diagonal one of each parameter's
+    own curvature and False, or ``(None, False)`` where that is not negative either."""
+    prior = target.prior
+    d = prior.ndim
+    h = 1e-4 * (prior.z_upper - prior.z_lower)
+    z0 = np.clip(z0, prior.z_lower + 2.5 * h, prior.z_upper - 2.5 * h)
+    e = np.eye(d) * h
+    pts = [z0]
+    for i in range(d):
+        for j in range(i, d):
+            pts += [z0 + e[i] + e[j], z0 + e[i] - e[j], z0 - e[i] + e[j], z0 - e[i] - e[j]]
+    lp = target(np.array(pts))
+    if not np.all(np.isfinite(lp)):
+        return None
+    hess = np.empty((d, d))
+    k = 1
+    for i in range(d):
+        for j in range(i, d):
+            hess[i, j] = hess[j, i] = (lp[k] - lp[k + 1] - lp[k + 2] + lp[k + 3]) / (4 * h[i] * h[j])
+            k += 4
+    try:
+        cov = np.linalg.inv(-hess)
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        # not a maximum in every direction (a mode on a bound, a kink of the model): each parameter's
+        # own curvature, where that is negative
+        curv = -np.diag(hess)
+        return (np.diag(1.0 / curv), False) if np.all(curv > 0) else (None, False)
+    return cov, True
+
+
+def _capped_chol(prior, cov) -> np.ndarray:
+    """Cholesky factor of the Laplace covariance with every spread capped at a tenth of the box."""
+    sd = np.sqrt(np.diag(cov))
+    cap = np.minimum(1.0, 0.1 * (prior.z_upper - prior.z_lower) / sd)
+    return np.linalg.cholesky(cov * np.outer(cap, cap))
+
+
+def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
+    """Walkers around the mode, all inside the box with finite log-probability: drawn from the
+    Laplace approximation (no burn-in transient while the ensemble expands; its spread capped at a
+    tenth of the box, for directions the mode barely constrains) or, without one, from a small ball."""
+    prior = target.prior
+    width = prior.z_upper - prior.z_lower
+    chol = None if cov is None else _capped_chol(prior, cov)
+    p0 = np.empty((nwalkers, prior.ndim))
+    filled, scale = 0, 1.0 if cov is not None else 1e-3
+    for _ in range(60):
+        normal = rng.standard_normal((nwalkers, prior.ndim))
+        cand = z0 + scale * (normal @ chol.T if cov is not None else width * normal)
+        # reflect into the box once (a clip would pile walkers on a bound); what is still out is drawn again
+        cand = np.where(cand < prior.z_lower, 2 * prior.z_lower - cand, cand)
+        cand = np.where(cand > prior.z_upper, 2 * prior.z_upper - cand, cand)
+        inside = np.all((cand >= prior.z_lower) & (cand <= prior.z_upper), axis=1)
+        cand = cand[inside]
+        ok = cand[np.isfinite(target(cand))] if len(cand) else cand
+        take = min(len(ok), nwalkers - filled)
+        p0[filled:filled + take] = ok[:take]
+        filled += take
+        if filled == nwalkers:
+            return p0
+        scale *= 0.7
+    raise ValueError("no finite log-probability near the start: the target is -inf around its mode")
+
+
+# --- the ensembles -------------------------------------------------------------------------
+
+_T_DOF = 5.0  # the independence proposal's t: heavier tails than a near-Gaussian posterior
+
+
+@dataclass(frozen=True)
+class _TProposal:
+    """A multivariate t over the sampled coordinates (location ``mean``, scale ``chol chol^T``, ``_T_DOF``
+    degrees of freedom): one ensemble's independence proposal."""
+
+    mean: np.ndarray
+    chol: np.ndarray
+
+    def draw(self, rng, n) -> np.ndarray:
+        y = rng.standard_normal((n, self.mean.size)) @ self.chol.T
+        return self.mean + y * np.sqrt(_T_DOF / rng.chisquare(_T_DOF, n))[:, None]
+
+    def log_density(self, x) -> np.ndarray:
+        """Up to a constant."""
+        u = np.linalg.solve(self.chol, (x - self.mean).T)
+        return -0.5 * (_T_DOF + self.mean.size) * np.log1p(np.sum(u * u, axis=0) / _T_DOF)
+
+
+def _fit_proposal(chain) -> _TProposal | None:
+    """The t proposal of one ensemble from its own kept steps ``(steps, walkers, ndim)`` (their mean and
+    covariance), or None where they do not span every direction."""
+    x = chain.reshape(-1, chain.shape[-1])
+    cov = np.atleast_2d(np.cov(x.T))
+    sd = np.sqrt(np.diag(cov))
+    if not np.all(np.isfinite(sd) & (sd > 0)):
+        return None
+    try:
+        chol = np.linalg.cholesky(cov + 1e-10 * np.diag(np.diag(cov)))
+    except np.linalg.LinAlgError:
+        return None
+    return _TProposal(mean=x.mean(axis=0), chol=chol)
+
+
+class _Ensembles(emcee.moves.Move):
+    """Moves for several independent ensembles held side by side in one emcee sampler, so that one
+    vectorised log-density call advances all of them.
+
+    Walkers ``[g W, (g + 1) W)`` form ensemble g. Each step, every ensemble splits its walkers in two
+    halves at random and moves each half, accepted by Metropolis-Hastings, by
+
+    - differential evolution: ``x + gamma (x_a - x_b)`` with ``x_a != x_b`` drawn from its own other
+      half (ter Braak 2006; ``gamma = 2.38 / sqrt(2 ndim)`` with a 1e-5 relative jitter as emcee's
+      ``DEMove``, and ``gamma = 1`` in a tenth of the proposals, ter Braak's jump between modes);
+    - or, with probability ``independence`` where the ensemble has a proposal, an independence move:
+      a draw from that ensemble's multivariate t (:class:`_TProposal`, fitted by :func:`sample` to the
+      ensemble's own earlier steps and fixed for the round), accepted with the ratio
+      ``p(x') q(x) / (p(x) q(x'))``. Where the posterior is close to its Gaussian approximation it
+      decorrelates a walker in a few steps, where differential evolution needs ~4 ndim; where it is
+      not (curved, several modes), it is mostly rejected and differential evolution does the work.
+
+    An ensemble never sees another's walkers and draws every random number from its own generator, so
+    the ensembles are independent, independently seeded chains: the same as running them one by one,
+    in any grouping over processes.
+    """
+
+    def __init__(self, n_walkers: int, generators, proposals=None, independence: float = 0.0):
+        self.n_walkers, self.generators = n_walkers, list(generators)
+        self.proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
+        self.independence = independence
+
+    def propose(self, model, state):
+        coords, w = state.coords, self.n_walkers
+        gamma0 = 2.38 / np.sqrt(2 * coords.shape[1])
+        halves = [g * w + rng.permutation(w) for g, rng in enumerate(self.generators)]
+        accepted = np.zeros(len(coords), dtype=bool)
+        for h in (0, 1):
+            moving, proposals, log_u = [], [], []
+            for perm, rng, tp in zip(halves, self.generators, self.proposals):
+                s, c = (perm[: w // 2], perm[w // 2:]) if h == 0 else (perm[w // 2:], perm[: w // 2])
+                a = rng.integers(len(c), size=len(s))
+                b = (a + rng.integers(1, len(c), size=len(s))) % len(c)  # a pair of distinct walkers
+                gamma = np.where(rng.random(len(s)) < 0.1, 1.0, gamma0 * (1 + 1e-5 * rng.standard_normal(len(s))))
+                q = coords[s] + gamma[:, None] * (coords[c[a]] - coords[c[b]])
+                lu = np.log(rng.random(len(s)))
+                if tp is not None and self.independence > 0:
+                    indep = rng.random(len(s)) < self.independence
+                    q = np.where(indep[:, None], tp.draw(rng, len(s)), q)
+                    # Metropolis-Hastings: the proposal's density ratio moves the threshold
+                    lu = lu - np.where(indep, tp.log_density(coords[s]) - tp.log_density(q), 0.0)
+                proposals.append(q)
+                log_u.append(lu)
+                moving.append(s)
+            idx, q, log_u = np.concatenate(moving), np.concatenate(proposals), np.concatenate(log_u)
+            new_lp, _ = model.compute_log_prob_fn(q)
+            ok = new_lp - state.log_prob[idx] > log_u
+            coords[idx[ok]], state.log_prob[idx[ok]] = q[ok], new_lp[ok]
+            accepted[idx[ok]] = True
+        return state, accepted
+
+
+def _advance(job):
+    """Run some ensembles (side by side) ``steps`` further; module-level so a process can run it.
+
+    ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), proposals (G,),
+    independence, steps)``; returns the chain, the log-probabilities, the final coords/log-probs, the
+    generators' states and the acceptance counts per walker.
+    """
+    target, coords, log_prob, gen_states, proposals, independence, steps = job
+    generators = []
+    for st in gen_states:
+        g = np.random.Generator(np.random.PCG64())
+        g.bit_generator.state = st
+        generators.append(g)
+    n, ndim = coords.shape
+    move = _Ensembles(n // len(generators), generators, proposals, independence)
+    sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
+    with one_blas_thread():
+        state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
+    return (sampler.get_chain(), sampler.get_log_prob(), state.coords, state.log_prob,
+            [g.bit_generator.state for g in generators], sampler.backend.accepted.copy())
+
+
+def _tau(chain) -> tuple[np.ndarray, int]:
+    """Integrated autocorrelation time of each parameter of one ensemble's chain ``(steps, walkers, ndim)``
+    (emcee's estimator over the walkers that moved), and the number of walkers that never moved."""
+    moving = np.ptp(chain, axis=0).max(axis=1) > 0  # (walkers,)
+    if not moving.any():
+        return np.full(chain.shape[-1], np.inf), chain.shape[1]
+    tau = emcee.autocorr.integrated_time(chain[:, moving], c=5, tol=0, quiet=True)
+    return np.where(np.isfinite(tau), tau, np.inf), int((~moving).sum())
+
+
+def _draws(chains, lps, burn, thin):
+    """Kept, thinned draws of every ensemble: ``(n_chains, n_draws, ndim)`` walker-major, and log-probs."""
+    x = np.stack([np.swapaxes(c[burn::thin], 0, 1).reshape(-1, c.shape[-1]) for c in chains])
+    lp = np.stack([lp[burn::thin].T.reshape(-1) for lp in lps])
+    return x, lp
+
+
+def _assess(chains, lps, n, names, config, to_natural):
+    """``(done, reason, tau, thin, draws, lp, diagnostics, need)`` after ``n`` steps of every ensemble."""
+    burn = int(config.burn_fraction * n)
+    kept = n - burn
+    estimates = [_tau(c[burn:]) for c in chains]
+    tau = np.max([t for t, _ in estimates], axis=0)  # (ndim,): the worst ensemble
+    stuck = sum(k for _, k in estimates)
+    finite = np.isfinite(tau).all()
+    need = int(math.ceil(config.tau_factor * tau.max() / (1 - config.burn_fraction))) if finite else config.max_steps
+    nwalkers = chains[0].shape[1]
+    thin = max(1, int(math.ceil(tau.max() / 2)) if finite else 1, int(math.ceil(kept * nwalkers / config.max_draws)))
+    x, lp = _draws(chains, lps, burn, thin)
+    # on the natural-unit draws that are stored (the folded R-hat is not invariant under log)
+    natural = to_natural(x.reshape(-1, x.shape[-1])).reshape(x.shape)
+    diag = convergence({nm: natural[:, :, i] for i, nm in enumerate(names)})
+    problems = []
+    if stuck:
+        problems.append(f"{stuck} walker(s) never moved in the kept run")
+    if kept < config.tau_factor * tau.max():
+        worst = names[int(np.argmax(tau))]
+        problems.append(f"run {kept} steps < {config.tau_factor:g} x tau ({worst}: tau {tau.max():.0f})")
+    for nm, d in diag.items():
+        if not d["r_hat"] <= POLICY["rhat_max"]:
+            problems.append(f"R-hat of {nm} {d['r_hat']:.3f} > {POLICY['rhat_max']}")
+        ess = min(d["ess_bulk"], d["ess_tail"])
+        if not ess >= POLICY["ess_min"]:
+            problems.append(f"ESS of {nm} {ess:.0f} < {POLICY['ess_min']:.0f}")
+    return not problems, "; ".join(problems), dict(zip(names, map(float, tau))), burn, thin, x, lp, diag, need
+
+
+def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=None,
+           progress: str | None = None) -> SampleResult:
+    """Sample the posterior of ``target`` under sbcal's convergence policy.
+
+    Parameters
+    ----------
+    target : object
+        ``prior``, vectorised ``__call__(z)`` and optionally ``pointwise_log_likelihood(params)``
+        (module docstring).
+    seed : int or numpy.random.SeedSequence
+        Seeds the start and every ensemble: the same seed gives the same draws, whatever
+        ``config.workers``.
+    config : SamplerConfig
+    start : dict of str -> float, or ndarray of shape (ndim,), optional
+        Where to polish the mode from (natural values by name, or sampled coordinates); default a
+        differential-evolution search over the prior box.
+    progress : str, optional
+        A label: a progress bar on stderr (when it is a terminal).
+
+    Returns
+    -------
+    SampleResult
+    """
+    t0 = time.perf_counter()
+    prior = target.prior
+    names = tuple(prior.names)
+    nwalkers = max(config.nwalkers, 2 * prior.ndim + 2)
+    nwalkers += nwalkers % 2
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    seqs = root.spawn(config.n_ensembles + 1)
+    with progress_bar(progress, total=None, unit="step") as bar:
+        bar.set_postfix_str("finding the mode")
+        z0 = _start(target, start, np.random.default_rng(seqs[0]), config)
+        cov, full = _laplace(target, z0)
+        coords, gens = [], []
+        for ss in seqs[1:]:  # each ensemble: its own start and its own generator
+            rng = np.random.default_rng(ss)
+            coords.append(_initial(target, z0, cov, nwalkers, rng))
+            gens.append(rng.bit_generator.state)
+        coords = np.concatenate(coords)
+        log_prob = target(coords)
+        # the ensembles are cut into one group per process; the draws do not depend on the cut
+        groups = np.array_split(np.arange(config.n_ensembles), min(max(config.workers, 1), config.n_ensembles))
+        chains, lps = [], []
+        accepted = np.zeros(len(coords))
+        n, block = 0, min(config.first_steps, config.max_steps)
+        # the first round's independence proposal: the Laplace approximation at the mode
+        first = _TProposal(mean=z0, chol=_capped_chol(prior, cov)) if full else None
+        proposals = [first] * config.n_ensembles
+        pool = ProcessPoolExecutor(max_workers=len(groups)) if len(groups) > 1 else None
+        try:
+            while True:
+                jobs = []
+                for grp in groups:
+                    rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
+                    jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp],
+                                 [proposals[e] for e in grp], config.independence, block))
+                pieces_c, pieces_l = [], []
+                for grp, (c, lp, cs, ls, gs, acc) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
+                    rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
+                    coords[rows], log_prob[rows] = cs, ls
+                    for e, st in zip(grp, gs):
+                        gens[e] = st
+                    accepted[rows] += acc
+                    pieces_c.append(c)
+                    pieces_l.append(lp)
+                chains.append(np.concatenate(pieces_c, axis=1))  # (steps, ensembles x walkers, ndim)
+                lps.append(np.concatenate(pieces_l, axis=1))
+                n += block
+                chain = np.concatenate(chains)
+                lp_all = np.concatenate(lps)
+                per = [chain[:, e * nwalkers:(e + 1) * nwalkers] for e in range(config.n_ensembles)]
+                per_lp = [lp_all[:, e * nwalkers:(e + 1) * nwalkers] for e in range(config.n_ensembles)]
+                done, reason, tau, burn, thin, x, lp, diag, need = _assess(per, per_lp, n, names, config,
+                                                                           prior.to_natural)
+                bar.total = max(need, n)
+                bar.update(block)
+                bar.set_postfix_str(f"tau {max(tau.values()):.0f}")
+                if done or n >= config.max_steps:
+                    break
+                # the next round: to the length the autocorrelation asks for (5 % beyond, as the estimate
+                # grows with the run), or half again when only R-hat or ESS are short
+                more = int(math.ceil(1.05 * need)) - n if need > n else n // 2
+                # at most doubling the run: the estimate of tau falls as the proposals improve
+                block = min(max(more, n // 10, 50), n, config.max_steps - n)
+                if config.independence > 0:  # each ensemble's proposal from its own kept steps
+                    proposals = [_fit_proposal(c[burn:]) for c in per]
+        finally:
+            if pool:
+                pool.shutdown()
+    natural = prior.to_natural(x.reshape(-1, prior.ndim))
+    params = {nm: natural[:, i] for i, nm in enumerate(names)}
+    loglik = None
+    if hasattr(target, "pointwise_log_likelihood"):
+        chunk = 2000
+        parts = [target.pointwise_log_likelihood({k: v[i:i + chunk] for k, v in params.items()})
+                 for i in range(0, natural.shape[0], chunk)]
+        loglik = np.concatenate(parts).reshape(x.shape[0], x.shape[1], -1)
+    return SampleResult(
+        names=names, draws={nm: v.reshape(x.shape[:2]) for nm, v in params.items()}, log_prob=lp, log_likelihood=loglik,
+        tau=tau, acceptance=accepted.reshape(config.n_ensembles, nwalkers).mean(axis=1) / n, r_hat={k: v["r_hat"] for k, v in diag.items()},
+        ess_bulk={k: v["ess_bulk"] for k, v in diag.items()}, ess_tail={k: v["ess_tail"] for k, v in diag.items()},
+        n_steps=n, burn=burn, thin=thin, converged=bool(done),
+        reason="" if done else f"stopped at the {config.max_steps}-step cap: {reason}",
+        start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
+        wall_s=time.perf_counter() - t0, config=config,
+    )

@@ -1,0 +1,500 @@
+"""``sbcal report``: a self-contained static HTML summary of a run store.
+
+One ``index.html`` with its PNG figures beside it (``figures/``); opens from disk with no server
+and no network. Per damper: data quality, then per test the fit (runs, mean, posterior-predictive
+band), dissipated power, the parameter table with convergence diagnostics, corner and trace plots;
+across tests the amplitude map. Missing pieces (a test not sampled yet) are shown as missing. Each prediction of a new damper from a calibrated cable
+(``predict-*/``, :mod:`sbcal.design.predict`) gets a section of its own, and so does each span study
+(``span/*/``, :mod:`sbcal.design.span`: the stored figure and the margins to the fatigue limit).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..core._io import atomic_path
+from ..core.errors import InputError
+from ..core.plotting import pyplot, save_png
+from ..inference.sampler import POLICY
+
+
+__all__ = ["build_report"]
+
+_FIG_DPI = 90
+
+
+def _save(fig, path: Path) -> str:
+    return save_png(fig, path, dpi=_FIG_DPI).name
+
+
+@dataclass
+class _Test:
+    label: str
+    paramset: str
+    summary: dict | None = None
+    figures: dict = field(default_factory=dict)
+    rows: list = field(default_factory=list)
+    missing: str = ""
+
+
+def _fit_figure(idata, path: Path, title: str) -> str:
+    """Measured runs, their mean, the model's 90 % band and the predictive 90 % band for a new run."""
+    plt = pyplot()
+    f = np.asarray(idata.constant_data["freq_hz"])
+    obs_m = np.exp(np.asarray(idata.observed_data["logmag"]))
+    obs_p = np.degrees(np.asarray(idata.observed_data["phase"]))
+    pp = idata.posterior_predictive
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6.2), sharex=True)
+    for ax, obs, new, model, unit in (
+        (axes[0], obs_m, np.exp(np.asarray(pp["logmag"])), np.exp(np.asarray(pp["model_logmag"])), "|F/X| [N/m]"),
+        (axes[1], obs_p, np.degrees(np.asarray(pp["phase"])), np.degrees(np.asarray(pp["model_phase"])), "phase [deg]"),
+    ):
+        new = new.reshape(-1, f.size)
+        model = model.reshape(-1, f.size)
+        lo, hi = np.quantile(new, [0.05, 0.95], axis=0)
+        ax.fill_between(f, lo, hi, color="C1", alpha=0.25, label="posterior predictive 90 % (a new run)")
+        mlo, mmid, mhi = np.quantile(model, [0.05, 0.5, 0.95], axis=0)
+        ax.fill_between(f, mlo, mhi, color="C3", alpha=0.35, label="model curve 90 %")
+        ax.plot(f, mmid, color="C3", lw=1.2, label="model curve, median")
+        for i, run in enumerate(obs):
+            ax.plot(f, run, color="0.55", lw=0.5, alpha=0.6, label="measured runs" if i == 0 else None)
+        ax.plot(f, np.nanmean(obs, axis=0), "k.", ms=4, label="mean of runs")
+        ax.set_ylabel(unit)
+        ax.grid(alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[0].set_title(title)
+    axes[1].set_xlabel("frequency [Hz]")
+    axes[0].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _power_figure(idata, path: Path, title: str) -> str:
+    """Dissipated power P = 0.5 omega Im(f_uu) X0^2 of the model curves, with its 90 % band."""
+    plt = pyplot()
+    f = np.asarray(idata.constant_data["freq_hz"])
+    x0 = np.asarray(idata.constant_data["amplitude_mm_pp"]) / 2 * 1e-3  # peak base amplitude [m]
+    pp = idata.posterior_predictive
+    im = (np.exp(np.asarray(pp["model_logmag"])) * np.sin(np.asarray(pp["model_phase"]))).reshape(-1, f.size)
+    p = 0.5 * 2 * np.pi * f * im * x0**2
+    obs = np.exp(np.asarray(idata.observed_data["logmag"])) * np.sin(np.asarray(idata.observed_data["phase"]))
+    pobs = np.nanmean(0.5 * 2 * np.pi * f * obs * x0**2, axis=0)
+    lo, mid, hi = np.quantile(p, [0.05, 0.5, 0.95], axis=0)
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    ax.fill_between(f, lo, hi, color="C2", alpha=0.3, label="model, 90 %")
+    ax.plot(f, mid, color="C2", label="model, median")
+    ax.plot(f, pobs, "k.", ms=4, label="measured (mean of runs)")
+    ax.set(xlabel="frequency [Hz]", ylabel="dissipated power [W]", yscale="log", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _corner_figure(idata, names, path: Path) -> str:
+    import corner
+
+    x = np.stack([np.asarray(idata.posterior[n]).ravel() for n in names], axis=1)
+    fig = corner.corner(x, labels=list(names), quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g",
+                        title_kwargs={"fontsize": 8}, label_kwargs={"fontsize": 8})
+    fig.set_size_inches(1.5 * len(names) + 1, 1.5 * len(names) + 1)
+    return _save(fig, path)
+
+
+def _trace_figure(idata, names, path: Path) -> str:
+    """Draws per ensemble (chain): well-mixed ensembles overlap."""
+    plt = pyplot()
+    fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.2 * len(names) + 0.5), sharex=True)
+    for ax, n in zip(np.atleast_1d(axes), names):
+        v = np.asarray(idata.posterior[n])
+        for c in range(v.shape[0]):
+            ax.plot(v[c], lw=0.3, alpha=0.7)
+        ax.set_ylabel(n, fontsize=8)
+    np.atleast_1d(axes)[-1].set_xlabel("draw (walkers' thinned draws, one colour per ensemble)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _cv_figure(quality: dict, path: Path) -> str:
+    """CV per line of every test, from the stored cleaning stage (``data.json``'s ``quality``)."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    for t, q in quality.items():
+        axes[0].plot(q["frequency_hz"], q["magnitude_cv"], lw=1, label=t)
+        axes[1].plot(q["frequency_hz"], q["phase_cv"], lw=1, label=t)
+    axes[0].set(xlabel="frequency [Hz]", ylabel="CV of |F/X| [%]", title="Run-to-run spread, magnitude")
+    axes[1].set(xlabel="frequency [Hz]", ylabel="CV of phase [%]", title="Run-to-run spread, phase")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _diagnosis_figure(doc, path: Path) -> str:
+    """Standardised residuals of every test (rows) before (grey) and after (red) the chosen extension."""
+    plt = pyplot()
+    res = doc["residuals"]
+    tests = list(res)
+    fig, axes = plt.subplots(len(tests), 2, figsize=(10, 1.5 * len(tests) + 1.0), sharex=True, squeeze=False)
+    after = doc["after"]["effect"]
+    for i, t in enumerate(tests):
+        f = np.asarray(res[t]["freq_hz"])
+        for q, name in enumerate(("magnitude", "phase")):
+            ax = axes[i, q]
+            zb, za = np.asarray(res[t]["z_before"][q]), np.asarray(res[t]["z_after"][q])
+            for b in doc["bands"]:
+                if b["test"] == t and b["quantity"] == name:
+                    ax.axvspan(b["f_lo"] - 0.25, b["f_hi"] + 0.25, color="C1", alpha=0.2, lw=0)
+            ax.axhspan(-3, 3, color="C2", alpha=0.15, lw=0)
+            ax.plot(f, np.clip(zb, -50, 50), color="0.5", lw=1, marker=".", ms=3, label="per-test model")
+            if after != "baseline":
+                ax.plot(f, np.clip(za, -50, 50), color="C3", lw=1.2, marker=".", ms=3, label=after)
+            ax.set_ylim(-55, 55)
+            ax.text(0.01, 0.95, f"{t} {name}", transform=ax.transAxes, va="top", fontsize=8,
+                    bbox=dict(fc="white", ec="none", alpha=0.8))
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, loc="lower right")
+    for q in (0, 1):
+        axes[-1, q].set_xlabel("frequency [Hz]")
+    fig.supylabel("z = residual of the run mean / predictive sd (clipped at ±50)", fontsize=9)
+    fig.suptitle(f"{doc['damper']}: where the model misses (orange: located bands; green: |z| < 3)", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _law_figure(cables: dict, path: Path) -> str:
+    """The cable law of each state: EJ and loss factor against curvature amplitude, median and 90 %
+    band, with the curvature range each test reached."""
+    from ..inference.cable_fit import law_curves
+
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for i, (state, (summary, draws)) in enumerate(sorted(cables.items())):
+        color = f"C{i % 10}"
+        reached = summary.get("tests_reached", {})
+        lo = min((r["curvature_min"] for r in reached.values()), default=1e-4)
+        hi = max((r["curvature_max"] for r in reached.values()), default=1e-1)
+        chi = np.geomspace(max(lo / 10, 1e-7), hi * 10, 120)
+        keep = np.linspace(0, next(iter(draws.values())).size - 1, min(400, next(iter(draws.values())).size)).astype(int)
+        ej, loss = law_curves(summary["law"], {k: v[keep] for k, v in draws.items()}, chi)
+        for ax, y in ((axes[0], ej), (axes[1], loss)):
+            q05, q50, q95 = np.quantile(y, [0.05, 0.5, 0.95], axis=0)
+            ax.fill_between(chi, q05, q95, color=color, alpha=0.25)
+            ax.plot(chi, q50, color=color, lw=1.5, label=f"{state} cable ({summary['law']}), median and 90 %")
+        for k, (t, r) in enumerate(sorted(reached.items())):  # the range each test bent the arms over
+            yk = 0.96 - 0.05 * k - 0.4 * i
+            axes[0].plot([r["curvature_min"], r["curvature_max"]], [yk, yk], transform=axes[0].get_xaxis_transform(),
+                         color=color, lw=3, alpha=0.6, solid_capstyle="butt")
+            axes[0].text(r["curvature_max"], yk, f" {t}", transform=axes[0].get_xaxis_transform(), fontsize=6,
+                         va="center", color=color)
+    axes[0].set(xscale="log", yscale="log", xlabel="curvature amplitude [1/m]", ylabel="EJ = Re EJ* [N m$^2$]",
+                title="Cable rigidity (bars: curvature range each test reached)")
+    axes[1].set(xscale="log", xlabel="curvature amplitude [1/m]", ylabel="loss factor Im EJ* / Re EJ*",
+                title="Cable loss factor")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _curves_figure(doc, path: Path) -> str:
+    """Each test's run means with the per-test model's and the verdict model's fitted curves."""
+    plt = pyplot()
+    curves = doc.get("curves", {})
+    base = curves.get("baseline", {})
+    model = doc["after"]["effect"]
+    unified = curves.get(model, {})
+    tests = list(base)
+    fig, axes = plt.subplots(len(tests), 2, figsize=(10, 1.6 * len(tests) + 1.0), sharex=True, squeeze=False)
+    for i, t in enumerate(tests):
+        f = np.asarray(base[t]["freq_hz"])
+        data = curves.get("data", {}).get(t)
+        for q, (name, conv) in enumerate((("logmag", np.exp), ("phase", np.degrees))):
+            ax = axes[i, q]
+            if data is not None:
+                ax.plot(f, conv(np.asarray(data[name])), "k.", ms=3, label="mean of the runs")
+            ax.plot(f, conv(np.asarray(base[t][name])), color="0.5", lw=1, label="per-test model")
+            if t in unified:
+                ax.plot(f, conv(np.asarray(unified[t][name])), color="C3", lw=1.2, label=model)
+            ax.text(0.01, 0.95, f"{t} {'|F/X| [N/m]' if q == 0 else 'phase [deg]'}", transform=ax.transAxes,
+                    va="top", fontsize=8, bbox=dict(fc="white", ec="none", alpha=0.8))
+            if q == 0:
+                ax.set_yscale("log")
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, loc="lower right")
+    for q in (0, 1):
+        axes[-1, q].set_xlabel("frequency [Hz]")
+    fig.suptitle(f"{doc['damper']}: fitted curves, the per-test model and {model}", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _diagnosis(path: Path, figs: Path):
+    """The stored ``sbcal diagnose`` result of a damper, ready for the page (None if there is none),
+    with its cable laws (``cable-<state>/``) when the verdict is strand slip."""
+    import json
+
+    from ..inference.cable_fit import read_cable
+
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+        doc["figure"] = _diagnosis_figure(doc, figs / f"{doc['damper']}_diagnosis.png")
+        if doc.get("curves") and doc["after"]["effect"] != "baseline":
+            doc["curves_figure"] = _curves_figure(doc, figs / f"{doc['damper']}_curves.png")
+    except (ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a diagnosis written by sbcal diagnose ({e})") from None
+    cables = {}
+    for d in sorted(path.parent.glob("cable-*")):
+        if (d / "summary.json").is_file():
+            cables[d.name.removeprefix("cable-")] = read_cable(d)
+    if cables:
+        doc["law_figure"] = _law_figure(cables, figs / f"{doc['damper']}_law.png")
+        doc["cables"] = {state: s for state, (s, _) in cables.items()}
+    return doc
+
+
+def _predictions(damper_dir: Path, figs: Path) -> list:
+    """The stored predictions beside a damper's cable runs (``predict-*/``), ready for the page, each
+    figure redrawn from the store."""
+    from ..design.predict_plots import plot_prediction, plot_sweep
+    from ..design.predict_store import stored_predictions
+
+    out = []
+    for d, pred, sweeps in stored_predictions(damper_dir):
+        stem = f"{damper_dir.name}_{d.name}"
+        item = {"name": d.name, "prediction": pred, "sweeps": [], "figure": None, "resonances": []}
+        if pred is not None:
+            item["figure"] = plot_prediction(pred, figs / f"{stem}.png").name
+            unit = "mm p-p" if pred.mode == "amplitude" else "m/s"
+            for i, lv in enumerate(pred.levels):
+                rs = [r for r in pred.resonances if r.level == lv]
+                ex = pred.freq_hz[pred.extrapolated[i]]
+                item["resonances"].append({
+                    "level": f"{lv:g} {unit}",
+                    "resonances": "; ".join(f"{eng(r.freq_hz[1])} [{eng(r.freq_hz[0])}, {eng(r.freq_hz[2])}]"
+                                            + (f" ({r.share:.0%} of draws)" if r.share < 0.95 else "") for r in rs) or "none",
+                    "peak_power": eng(float(np.nanmax(pred.power_w[i, 1]))),
+                    "extrapolated": f"{ex.size} lines, {ex.min():g}-{ex.max():g} Hz" if ex.size else "none",
+                    "folds": ", ".join(f"{f:g}" for f in pred.freq_hz[pred.fold_share[i] > 0]) or "none"})
+        for k, sw in enumerate(sweeps):
+            item["sweeps"].append({"field": sw.field, "result": sw,
+                                   "figure": plot_sweep(sw, figs / f"{stem}_sweep{k}.png").name})
+        out.append(item)
+    return out
+
+
+def _span_studies(runs: Path, figs: Path) -> list:
+    """The stored span studies (``<runs>/span/*/``, :mod:`sbcal.design.span`), ready for the page: key numbers
+    from ``summary.json`` and the stored figure copied beside the page (nothing is recomputed)."""
+    import shutil
+
+    from ..design.span_study import stored_spans
+
+    out = []
+    for d, doc in stored_spans(runs):
+        fig = None
+        if (d / "span.png").is_file():
+            fig = f"span_{d.name}.png"
+            with atomic_path(figs / fig, ".png") as tmp:
+                shutil.copyfile(d / "span.png", tmp)
+        m, c, ws, p = doc["margin"], doc["conductor"], doc.get("worst_stress_mpa") or {}, doc.get("placement")
+        out.append({
+            "name": d.name, "figure": fig, "conductor": c, "damper": doc.get("damper", "none"), "cable": doc.get("cable", ""),
+            "cable_damper": doc.get("cable_damper", ""), "state": doc.get("state", ""), "law": doc.get("law", ""),
+            "positions": ", ".join(f"{x:.3g}" for x in doc.get("positions_m", [])), "ends": doc.get("ends", 1),
+            "n_draws": doc.get("n_draws"), "limit": eng(doc.get("limit_mpa")),
+            "margin": f"{eng(m['median'])} [{eng(m['q05'])}, {eng(m['q95'])}]" if doc.get("positions_m") else "—",
+            "margin_bare": eng(doc.get("margin_bare")),
+            "stress": f"{eng(ws.get('median'))} [{eng(ws.get('q05'))}, {eng(ws.get('q95'))}]" if doc.get("positions_m") else "—",
+            "stress_bare": eng(ws.get("bare")),
+            "safe": m.get("q05") is not None and m["q05"] >= 1 if doc.get("positions_m") else None,
+            "placement": None if not p else {"best": eng(p["best_position_m"]), "margin": eng(p["best_margin"]),
+                                             "quantile": round(100 * p["quantile"]), "suffices": p["suffices"]},
+            "warnings": doc.get("warnings", [])})
+    return out
+
+
+def _fmt(v, digits=4):
+    return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+
+def eng(v) -> str:
+    """A number in engineering precision: 3 significant digits (``2.00e+06``, ``0.125``, ``41.7``)."""
+    if v is None:
+        return "—"
+    v = float(v)
+    if not np.isfinite(v):
+        return "—"
+    if v != 0 and not 1e-3 <= abs(v) < 1e5:
+        return f"{v:.2e}"
+    return f"{v:.3g}"
+
+
+def _test_item(runs: Path, dname: str, t: str, paramset: str, figs: Path) -> _Test:
+    """One test's section: its stored run's figures and parameter table (or what is missing)."""
+    from ..inference.runs import read_run, run_dir
+
+    d = run_dir(runs, dname, t, paramset)
+    item = _Test(label=t, paramset=paramset)
+    try:
+        idata, s = read_run(d)
+    except InputError:
+        item.missing = "not sampled yet (no finished run)"
+        return item
+    item.summary = s
+    names = list(s["parameters"])
+    model_names = [n for n in names if not n.startswith("sigma_")]
+    stem = f"{dname}_{t}".replace("/", "_")
+    item.figures = {
+        "fit": _fit_figure(idata, figs / f"{stem}_fit.png", f"{dname} {t}: measured runs and posterior"),
+        "power": _power_figure(idata, figs / f"{stem}_power.png", f"{dname} {t}: power dissipated"),
+        "corner": _corner_figure(idata, model_names, figs / f"{stem}_corner.png"),
+        "trace": _trace_figure(idata, names, figs / f"{stem}_trace.png"),
+    }
+    for n, p in s["parameters"].items():
+        flag = not (p["r_hat"] <= POLICY["rhat_max"] and min(p["ess_bulk"], p.get("ess_tail", 0)) >= POLICY["ess_min"]) \
+            or not s.get("converged", False)
+        item.rows.append({"name": n, "median": _fmt(p["median"]), "q05": _fmt(p["q05"]), "q95": _fmt(p["q95"]),
+                          "r_hat": _fmt(p["r_hat"], 4), "ess": _fmt(p["ess_bulk"], 4), "tau": _fmt(p["tau"], 3),
+                          "flag": flag})
+    return item
+
+
+def _job(job):
+    """Run one drawing job ``(function, key, args)``; module-level so a process can run it."""
+    fn, key, args = job
+    return key, fn(*args)
+
+
+def _draw(jobs, workers: int):
+    """``(key, result)`` of every drawing job, in ``workers`` processes (here when 1)."""
+    if workers <= 1 or len(jobs) <= 1:
+        return [_job(j) for j in jobs]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(_job, jobs))
+
+
+def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", command: str = "",
+                 progress=None, workers: int = 1) -> Path:
+    """Write ``<out_dir>/index.html`` (and ``figures/``) from a run store; returns its path.
+
+    Renders what the stages stored and recomputes nothing: the cleaning summary (``data.json``), the
+    posteriors, the diagnosis (``diagnose.json``) and the amplitude map (``map.json`` + ``map.nc``).
+
+    Parameters
+    ----------
+    runs_dir : path-like
+        The run store (``sbcal sample --out``).
+    out_dir : path-like
+    paramset : str
+        Parameter set whose runs are reported.
+    command : str
+        Command line, for provenance.
+    progress : callable, optional
+        Called with a short text per step.
+    workers : int
+        Processes drawing the figures (the page is the same for any number).
+    """
+    import json
+
+    from jinja2 import Environment, PackageLoader, select_autoescape
+
+    from ..data.bench import THESIS_TESTS
+    from ..inference.amplitude import plot_map, stored_maps
+
+    say = progress or (lambda text: None)
+    runs = Path(runs_dir)
+    if not runs.is_dir():
+        raise InputError(f"{runs}: no such run store (run 'sbcal sample' first)")
+    out = Path(out_dir)
+    figs = out / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    dampers = []
+    from ..design.span_study import SPAN_STORE
+
+    names = sorted(p.name for p in runs.iterdir() if p.is_dir() and p.name != SPAN_STORE)
+    test_dirs = {d: sorted({p.parent.name for p in (runs / d).glob(f"*/{paramset}")}) for d in names}
+    # the figures are drawn in worker processes (what takes the time); one job a test or a damper's extras
+    jobs = [(_test_item, ("test", d, t), (runs, d, t, paramset, figs)) for d in names for t in test_dirs[d]]
+    jobs += [(_diagnosis, ("diagnosis", d), (runs / d / "diagnose.json", figs)) for d in names]
+    jobs += [(_predictions, ("predictions", d), (runs / d, figs)) for d in names]
+    say(f"report: drawing the figures of {len(names)} damper(s)")
+    results = dict(_draw(jobs, workers))
+    for dname in names:
+        say(f"report: {dname}")
+        tests_dirs = test_dirs[dname]
+        data_path = runs / dname / "data.json"
+        try:
+            data = json.loads(data_path.read_text()) if data_path.is_file() else None
+        except ValueError as e:
+            raise InputError(f"{data_path}: not valid JSON ({e})") from None
+        expected = list(data["tests"]) if data else []
+        tests = [results.pop(("test", dname, t)) for t in tests_dirs]
+        order = {t: i for i, t in enumerate(THESIS_TESTS)}
+        have = {t.label for t in tests}
+        for t in expected:
+            if t not in have:
+                tests.append(_Test(label=t, paramset=paramset, missing="not sampled yet"))
+        tests.sort(key=lambda t: (order.get(t.label, len(order)), t.label))
+        quality, cv_fig = [], None
+        if data:
+            for t, q in data["tests"].items():
+                branches = q.get("branches") or {}
+                quality.append({"test": t, "runs": q["runs"], "removed": ", ".join(map(str, q["removed_runs"])) or "none",
+                                "amplitudes": ", ".join(f"{a:g}" for a in q["amplitude_mm_pp"]),
+                                "lines": q["n_frequencies"],
+                                "branches": "two response branches, both kept" if branches.get("split") else ""})
+            cv_fig = _cv_figure(data["quality"], figs / f"{dname}_cv.png")
+        bench_note = "" if data else f"no cleaning stage stored ({data_path} is missing; 'sbcal run' writes it)"
+        dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note,
+                        "diagnosis": results.pop(("diagnosis", dname)),
+                        "predictions": results.pop(("predictions", dname))})
+
+    say("report: amplitude map")
+    docs = stored_maps(runs)
+    map_note = "" if docs else "none stored ('sbcal map' or 'sbcal run' writes it from 3 or more amplitudes)"
+    map_fig = None
+    map_rows = []
+    if docs:
+        map_fig = "amplitude_map.png"
+        plot_map(docs, figs / map_fig)
+        for name, doc in docs.items():
+            pl, sat = doc["powerlaw"], doc["saturating"]
+            row = {"damper": name, "k": pl["k"], "n": pl["n"], "ej_inf": sat["EJ_inf"],
+                   "reduction": sat.get("reduction_factor"), "preferred": doc["preferred"], "criterion": doc["criterion"],
+                   "converged": doc.get("converged", False),
+                   "problems": ", ".join(doc.get("inputs_not_converged", []))}
+            if doc.get("beta"):
+                row["beta_k"], row["beta_n"] = doc["beta"]["powerlaw"]["k"], doc["beta"]["powerlaw"]["n"]
+            map_rows.append(row)
+
+    provenance = []
+    for d in dampers:
+        for t in d["tests"]:
+            if t.summary:
+                cfg = t.summary.get("config", {})
+                provenance.append({"run": f"{d['name']} {t.label} {t.paramset}", "seed": t.summary.get("seed"),
+                                   "wall_s": _fmt(t.summary.get("wall_s"), 3),
+                                   "command": cfg.get("command", ""),
+                                   "versions": ", ".join(f"{k} {v}" for k, v in t.summary.get("versions", {}).items())})
+    env = Environment(loader=PackageLoader("sbcal.report", "templates"), autoescape=select_autoescape(["html"]))
+    page = env.get_template("report.html").render(
+        dampers=dampers, spans=_span_studies(runs, figs), map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
+        created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
+        runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
+        eng=eng,
+    )
+    index = out / "index.html"
+    with atomic_path(index, ".html") as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return index
+

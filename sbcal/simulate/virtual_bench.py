@@ -1,0 +1,599 @@
+"""The virtual shaker bench: recordings from physics richer than the calibration model.
+
+A real bench measures a real damper; to prove the tool on data whose physics is known but hidden
+from the fit, this module plays the bench (``docs/virtual_bench.md``). The damper is the 6-DOF model
+of :mod:`sbcal.model.fem` with each arm's rigidity and loss factor free to depend on the line (per-arm,
+per-line values through :func:`sbcal.model.fem.arm_impedance`), plus switchable effects the calibration
+model leaves out (``shared/notes/model.md``, "Physics the linear model leaves out"):
+
+==============================  =============================  ==========================================
+id                              VALUE                          equation
+==============================  =============================  ==========================================
+``strand_slip``                 ``chi_median`` [1/m] or        the distributed cable with a hysteresis law
+                                ``key:value,...`` (SlipLaw)    (below)
+``fixture_mass``                ``m_f`` [kg]                   ``f_meas = f - omega^2 m_f``
+``sensor_delay``                ``tau`` [s]                    ``f_meas = f exp(-i omega tau)``
+``viscous_damping``             ``f_ref`` [Hz]                 ``beta_e(omega) = beta_e f / f_ref``
+``asymmetric_damping``          ``d`` [1]                      ``beta1 = beta + d/2, beta2 = beta - d/2``
+``base_rocking``                ``r`` [rad/m]                  ``phic = r xc``: ``f = H00 + r H01``
+``frequency_dependent_stiffness`` ``k`` [1]                    ``EJ(omega) = EJ (1 + k ln(f / 10 Hz))``
+==============================  =============================  ==========================================
+
+and, outside the catalogue (for an "unexplained misfit" check), ``fixture_resonance``
+(:class:`FixtureResonance`). Bench artefacts on top: run-to-run scatter of the damper (re-clamping),
+measurement noise largest at 4-15 Hz, occasional outlier runs, and the thesis's test plan with test
+``2-1``'s amplitude step at 10 Hz. Every random draw comes from the caller's
+:class:`numpy.random.Generator`: the same seed gives the same frame, byte for byte once written.
+
+Strand slip (:class:`SlipLaw`): the cable is the distributed model of :mod:`sbcal.model.cable` (each arm
+split into Hermite elements, each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``
+from a hysteresis law of :mod:`sbcal.model.hysteresis`: by default the bench's own lognormal Iwan law,
+outside both fitted families), driven at ``X0 = amplitude_mm_pp / 2 * 1e-3`` m and followed up the
+frequency grid as a stepped-sine controller does (``docs/virtual_bench.md``, ``docs/cable.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+
+from ..core.errors import InputError
+from ..data.bench import BENCH_COLUMNS, curves_to_frame
+from ..data.labels import parse_label
+from ..model.cable import ElementCableModel
+from ..model.damper import Damper
+from ..model.fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
+from ..model.hysteresis import law_for
+
+
+__all__ = [
+    "EFFECTS",
+    "EXTRA_EFFECTS",
+    "DEFAULT_TESTS",
+    "BENCH_ELEMENTS",
+    "SlipLaw",
+    "FixtureResonance",
+    "BenchConfig",
+    "parse_effect",
+    "test_amplitude",
+    "response",
+    "record",
+]
+
+EFFECTS = (
+    "strand_slip",
+    "fixture_mass",
+    "sensor_delay",
+    "viscous_damping",
+    "asymmetric_damping",
+    "base_rocking",
+    "frequency_dependent_stiffness",
+)
+"""Catalogue effect ids (the discrepancy catalogue of ``shared/notes/model.md``)."""
+
+EXTRA_EFFECTS = ("fixture_resonance",)
+"""Selectable effects outside the catalogue (physics no catalogue entry explains)."""
+
+DEFAULT_TESTS = ("0.1-0.1", "0.2-0.2", "0.3-0.3", "0.4-0.4", "0.5-0.5", "1-1", "2-2", "2-1")
+"""The thesis's test plan (Table 2.1) on a dry cable; ``1-1-oiled`` is another cable state (another config)."""
+
+STEP_HZ = 10.0
+"""A two-amplitude test ``A-B`` runs at A mm p-p up to and including this line, at B above it."""
+
+_F_REF_STIFFNESS_HZ = 10.0  # frequency_dependent_stiffness: EJ(10 Hz) = EJ
+# --- effect descriptions -----------------------------------------------------------------------
+
+_LAW_SCALE = {"dahl": "chi_dahl", "iwan": "chi_macro", "lognormal_iwan": "chi_median", "bouc_wen": "chi_slip",
+              "iwan5": "chi_macro", "iwan_tail": "chi_tail"}
+_LAW_DEFAULTS = {"dahl": {}, "iwan": {"micro_exponent": -0.5, "macro_ratio": 0.0},
+                 "lognormal_iwan": {"log_spread": 1.5}, "bouc_wen": {"sharpness": 1.0},
+                 "iwan5": {"chi_micro": 1e-6, "density_exponent": -0.5, "macro_ratio": 0.0},
+                 "iwan_tail": {"chi_micro": 1e-6, "density_exponent": -0.5, "tail_exponent": -1.5}}
+BENCH_ELEMENTS = 12
+"""Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.model.cable.DEFAULT_N_ELEMENTS`)."""
+
+
+@dataclass(frozen=True)
+class SlipLaw:
+    """The bench cable's strand slip: a hysteresis law of :mod:`sbcal.model.hysteresis` along both arms.
+
+    The cable is :class:`sbcal.model.cable.ElementCableModel` with ``elements`` Hermite elements per arm,
+    each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``; ``EJ_min`` is the bench's ``EJ``
+    parameter and ``beta_material`` its ``beta``. Each run follows the branch a stepped-sine sweep up
+    the grid reaches (continuation from line to line).
+
+    Attributes
+    ----------
+    law : str
+        ``"lognormal_iwan"`` (the bench's own law, fitted by no family), a fitted family
+        (``"bouc_wen"``, ``"iwan5"``, ``"iwan_tail"``) or a special case (``"dahl"``, ``"iwan"``).
+    params : tuple of (str, float)
+        The law's parameters (:attr:`sbcal.model.hysteresis.HysteresisLaw.parameters`); ``delta_EJ``
+        defaults to ``ej_static - EJ`` (the stuck cable is the damper's static rigidity), and
+        ``micro_exponent = -0.5``, ``macro_ratio = 0`` (iwan), ``log_spread = 1.5`` (lognormal_iwan),
+        ``sharpness = 1`` (bouc_wen), ``chi_micro = 1e-6``, ``density_exponent = -0.5``, ``macro_ratio = 0``
+        (iwan5; iwan_tail the same with ``tail_exponent = -1.5`` in place of ``macro_ratio``). The law's curvature scale
+        (``chi_dahl``, ``chi_macro``, ``chi_median``, ``chi_slip``, ``chi_tail``) is required.
+    elements : int
+        Hermite elements per arm (default :data:`BENCH_ELEMENTS`).
+    """
+
+    law: str = "lognormal_iwan"
+    params: tuple = ()
+    elements: int = BENCH_ELEMENTS
+
+    def __post_init__(self):
+        if self.law not in _LAW_SCALE:
+            raise InputError(f"strand_slip: unknown law {self.law!r}; known: {', '.join(_LAW_SCALE)}")
+        params = dict(_LAW_DEFAULTS[self.law], **dict(self.params))
+        model = law_for(self.law)
+        unknown = sorted(set(params) - set(model.parameter_names))
+        if unknown:
+            raise InputError(f"strand_slip: {unknown[0]} is not a parameter of the {self.law} law; "
+                             f"known: {', '.join(model.parameter_names)}")
+        scale = _LAW_SCALE[self.law]
+        if scale not in params:
+            raise InputError(f"strand_slip: {scale} is required")
+        for name, value in params.items():
+            v = np.asarray(value, dtype=float)
+            if not (np.isfinite(v) and model._domain(name, v)):
+                raise InputError(f"strand_slip: {name} is outside the {self.law} law's domain, got {value!r}")
+        if int(self.elements) != self.elements or self.elements < 1:
+            raise InputError(f"strand_slip: elements must be an integer >= 1, got {self.elements!r}")
+        object.__setattr__(self, "params", tuple(sorted(params.items())))
+        object.__setattr__(self, "elements", int(self.elements))
+
+    @property
+    def scale_name(self) -> str:
+        """The law's curvature scale parameter (scaled by the re-clamping scatter ``chi0_scatter``)."""
+        return _LAW_SCALE[self.law]
+
+    def law_params(self, ej_min, ej_static: float) -> dict:
+        """The law's parameters for given ``EJ_min``, with ``delta_EJ`` defaulting to ``ej_static - EJ_min``."""
+        p = dict(self.params)
+        p.setdefault("delta_EJ", ej_static - np.asarray(ej_min, dtype=float))
+        return p
+
+
+@dataclass(frozen=True)
+class FixtureResonance:
+    """A fixture mode on the table (not in the catalogue): a mass on a spring, rigid part calibrated out.
+
+    A modal mass ``m_r`` on a spring ``k_r = m_r omega_r^2 (1 + i eta)`` riding on the table adds
+    ``-omega^2 m_r k_r / (k_r - omega^2 m_r)``; the empty-table calibration removes its rigid-body
+    part ``-omega^2 m_r``, leaving a narrow, passive resonance::
+
+        f_meas = f - m_r omega^4 / (omega_r^2 (1 + i eta) - omega^2)
+
+    Attributes
+    ----------
+    freq_hz : float
+        Fixture natural frequency ``omega_r / 2 pi`` [Hz].
+    mass_kg : float
+        Modal mass ``m_r`` [kg].
+    eta : float
+        The fixture's loss factor (narrow resonance: small).
+    """
+
+    freq_hz: float
+    mass_kg: float = 0.05
+    eta: float = 0.05
+
+    def __post_init__(self):
+        for name in ("freq_hz", "mass_kg", "eta"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"fixture_resonance: {name} must be finite and > 0, got {v!r}")
+
+
+_KEYED = {
+    "fixture_resonance": (FixtureResonance, "freq_hz", {"f": "freq_hz", "freq_hz": "freq_hz", "m": "mass_kg",
+                                                        "mass_kg": "mass_kg", "eta": "eta"}),
+}
+
+
+def _number(spec: str, text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise InputError(f"effect {spec!r}: {text!r} is not a number") from None
+    if not math.isfinite(x):
+        raise InputError(f"effect {spec!r}: value is not finite")
+    return x
+
+
+def parse_effect(spec: str):
+    """``"NAME=VALUE"`` to ``(name, value)``, checked.
+
+    Numeric effects take a number (units: see the module table). ``strand_slip`` and
+    ``fixture_resonance`` take a number (the default law's ``chi_median`` [1/m], resp. ``freq_hz``)
+    or ``key:value`` pairs separated by commas:
+    ``strand_slip=law:iwan,chi_macro:0.02,micro_exponent:-0.4,delta_EJ:50,elements:8`` (``law`` one
+    of ``lognormal_iwan`` (default), ``dahl``, ``iwan``; the other keys the law's parameters),
+    ``fixture_resonance=f:23,m:0.05,eta:0.03``; they return a :class:`SlipLaw` /
+    :class:`FixtureResonance`.
+
+    Raises
+    ------
+    InputError
+        One line: unknown effect, malformed spec, non-numeric or out-of-range value.
+    """
+    name, sep, value = str(spec).partition("=")
+    name, value = name.strip(), value.strip()
+    known = EFFECTS + EXTRA_EFFECTS
+    if not sep or not value:
+        raise InputError(f"effect {spec!r}: expected NAME=VALUE")
+    if name not in known:
+        raise InputError(f"effect {spec!r}: unknown effect {name!r}; known: {', '.join(known)}")
+    if name == "strand_slip":
+        return name, _parse_slip(spec, value)
+    if name in _KEYED:
+        cls, first, keys = _KEYED[name]
+        kwargs = {}
+        if ":" not in value:
+            kwargs[first] = _number(spec, value)
+        else:
+            for item in value.split(","):
+                key, colon, text = item.partition(":")
+                key = key.strip()
+                if not colon or key not in keys:
+                    raise InputError(f"effect {spec!r}: expected key:value pairs with keys {', '.join(keys)}")
+                kwargs[keys[key]] = _number(spec, text)
+            if first not in kwargs:
+                raise InputError(f"effect {spec!r}: {first} is required")
+        try:
+            return name, cls(**kwargs)
+        except InputError as e:
+            raise InputError(f"effect {spec!r}: {str(e).removeprefix(name + ': ')}") from None
+    x = _number(spec, value)
+    if name in ("fixture_mass", "sensor_delay") and x < 0:
+        raise InputError(f"effect {spec!r}: must be >= 0")
+    if name == "viscous_damping" and x <= 0:
+        raise InputError(f"effect {spec!r}: the reference frequency must be > 0 Hz")
+    return name, x
+
+
+def _parse_slip(spec: str, value: str) -> SlipLaw:
+    """``CHI`` (the default law's curvature scale) or ``law:NAME,elements:N,PARAM:VALUE,...``."""
+    try:
+        if ":" not in value:
+            return SlipLaw(params=((_LAW_SCALE[SlipLaw.law], _number(spec, value)),))
+        law, elements, params = SlipLaw.law, BENCH_ELEMENTS, {}
+        for item in value.split(","):
+            key, colon, text = (t.strip() for t in item.partition(":"))
+            if not colon or not key:
+                raise InputError(f"effect {spec!r}: expected key:value pairs (law:NAME, elements:N, law parameters)")
+            if key == "law":
+                law = text
+            elif key == "elements":
+                elements = _number(spec, text)
+            else:
+                params[key] = _number(spec, text)
+        return SlipLaw(law=law, params=tuple(params.items()), elements=elements)
+    except InputError as e:
+        text = str(e)
+        if text.startswith("effect "):
+            raise
+        raise InputError(f"effect {spec!r}: {text.removeprefix('strand_slip: ')}") from None
+
+
+def _check_params(params: dict) -> dict:
+    out = dict(params)
+    for name, value in out.items():
+        if name not in PARAMETER_NAMES:
+            raise InputError(f"unknown parameter {name!r}; known: {', '.join(PARAMETER_NAMES)}")
+        if name.startswith("q"):
+            raise InputError(f"parameter {name!r}: the bench's EJ(omega) is the frequency_dependent_stiffness effect")
+        if not np.all(np.isfinite(np.asarray(value, dtype=float))):
+            raise InputError(f"parameter {name!r}: value is not finite")
+    return out
+
+
+def _check_effects(effects: dict) -> dict:
+    out = {}
+    for name, value in effects.items():
+        if name not in EFFECTS + EXTRA_EFFECTS:
+            raise InputError(f"unknown effect {name!r}; known: {', '.join(EFFECTS + EXTRA_EFFECTS)}")
+        if name == "strand_slip":
+            if not isinstance(value, SlipLaw):
+                value = SlipLaw(params=((_LAW_SCALE[SlipLaw.law], float(value)),))
+        elif name in _KEYED:
+            cls, first, _ = _KEYED[name]
+            if not isinstance(value, cls):
+                value = cls(**{first: float(value)})
+        else:
+            _, value = parse_effect(f"{name}={float(value)!r}")
+        out[name] = value
+    return out
+
+
+# --- configuration -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """What the virtual bench runs: the damper's concealed physics and the bench's artefacts.
+
+    Attributes
+    ----------
+    params : dict
+        Model parameters of :data:`sbcal.model.fem.PARAMETER_NAMES` (not ``q1..q5``: a frequency-dependent
+        EJ is the ``frequency_dependent_stiffness`` effect). Defaults: ``EJ = 0.1 ej_static``,
+        ``beta = 0.3``; geometry from the damper. With ``strand_slip`` on, ``EJ`` is the full-slip
+        ``EJ_min`` and ``beta`` the material loss factor.
+    effects : dict
+        Effect id -> value (see :func:`parse_effect`); read-only by convention.
+    runs : int
+        Runs per test.
+    ej_scatter, beta_scatter, offset_scatter, chi0_scatter : float
+        Re-clamping scatter of one run: relative standard deviations of a lognormal factor on EJ
+        (and ``EJ_max``), on the loss factors, on ``a1`` and ``a2`` (independently), and on the
+        slip law's curvature scale. Drawn once per run, so correlated across all its lines.
+    logmag_noise : tuple of float
+        Standard deviation of the measurement noise on ``ln |f|`` at low and at high frequency.
+    phase_noise_deg : tuple of float
+        The same for the phase [deg].
+    noise_corner_hz, noise_width_hz : float
+        The noise falls from its low- to its high-frequency level around ``noise_corner_hz``:
+        ``sigma(f) = hi + (lo - hi) / (1 + exp((f - corner) / width))``.
+    outlier_probability : float
+        Chance that a run is an outlier (a bad clamping or a drifting channel).
+    outlier_logmag, outlier_phase_deg : float
+        Scale of an outlier's distortion: a whole-run offset of ``+-U(1, 2) * scale`` on ``ln |f|``
+        and on the phase, tilted linearly over the sweep by up to the same amount.
+    slip_tol : float
+        Convergence tolerance of the strand-slip fixed point (``max |ln T(chi) - ln chi|`` over the
+        elements, :class:`sbcal.model.cable.ElementCableModel`).
+    slip_max_iter : int
+        Newton budget per pass of the fixed point (InputError if a line does not converge).
+    """
+
+    params: dict = field(default_factory=dict, hash=False)
+    effects: dict = field(default_factory=dict, hash=False)
+    runs: int = 24
+    ej_scatter: float = 0.015
+    beta_scatter: float = 0.04
+    offset_scatter: float = 0.01
+    chi0_scatter: float = 0.02
+    logmag_noise: tuple = (0.03, 0.008)
+    phase_noise_deg: tuple = (1.5, 0.4)
+    noise_corner_hz: float = 15.0
+    noise_width_hz: float = 2.0
+    outlier_probability: float = 0.03
+    outlier_logmag: float = 0.15
+    outlier_phase_deg: float = 5.0
+    slip_tol: float = 1e-9
+    slip_max_iter: int = 30
+
+    def __post_init__(self):
+        object.__setattr__(self, "params", _check_params(self.params))
+        object.__setattr__(self, "effects", _check_effects(dict(self.effects)))
+        if int(self.runs) != self.runs or self.runs < 1:
+            raise InputError(f"runs: expected an integer >= 1, got {self.runs!r}")
+        if not 0 <= self.outlier_probability <= 1:
+            raise InputError(f"outlier_probability: expected 0..1, got {self.outlier_probability!r}")
+        for name in ("ej_scatter", "beta_scatter", "offset_scatter", "chi0_scatter", "outlier_logmag",
+                     "outlier_phase_deg"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"{name}: expected a finite value >= 0, got {v!r}")
+
+    def ideal(self) -> "BenchConfig":
+        """The same damper and effects with no scatter, no noise and no outliers."""
+        return replace(self, ej_scatter=0.0, beta_scatter=0.0, offset_scatter=0.0, chi0_scatter=0.0,
+                       logmag_noise=(0.0, 0.0), phase_noise_deg=(0.0, 0.0), outlier_probability=0.0)
+
+
+# --- tests and amplitudes ----------------------------------------------------------------------
+
+def test_amplitude(label: str, freq_hz) -> np.ndarray:
+    """Commanded amplitude per line of a test [mm p-p].
+
+    ``"A-B"`` (optionally with a suffix, ``"1-1-oiled"``) runs at A mm p-p for ``f <= 10 Hz``
+    (:data:`STEP_HZ`) and B above: ``"0.5-0.5"`` is constant, ``"2-1"`` steps from 2 to 1 mm.
+
+    Returns
+    -------
+    ndarray, shape (n_freq,)
+    """
+    p = parse_label(label)
+    if not p or p.below_mm_pp <= 0 or p.above_mm_pp <= 0:
+        raise InputError(f"test {label!r}: expected A-B[-suffix] with amplitudes A, B > 0 in mm p-p (e.g. 0.5-0.5, 2-1)")
+    f = np.asarray(freq_hz, dtype=float)
+    return np.where(f <= STEP_HZ, p.below_mm_pp, p.above_mm_pp)
+test_amplitude.__test__ = False  # not a pytest test
+
+
+# --- the noise-free physics --------------------------------------------------------------------
+
+def _defaults(damper: Damper, params: dict) -> dict:
+    p = dict(params)
+    p.setdefault("EJ", 0.1 * damper.ej_static)
+    p.setdefault("beta", 0.3)
+    return p
+
+
+def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: dict, *, ej_scale=1.0,
+             chi0_scale=1.0, tol: float = 1e-9, max_iter: int = 30) -> np.ndarray:
+    """The bench's noise-free reading ``f_meas`` for parameter sets and effects.
+
+    Parameters
+    ----------
+    damper : Damper
+    freq_hz : array_like, shape (n_freq,)
+    amplitude_mm_pp : float or array_like, shape (n_freq,)
+        Commanded amplitude per line [mm p-p] (matters only with ``strand_slip``).
+    params : dict
+        Model parameters (see :class:`BenchConfig`), scalars or arrays of shape (n_sets,).
+    effects : dict
+        Effect id -> value (as :func:`parse_effect` returns).
+    ej_scale, chi0_scale : float or array_like, shape (n_sets,)
+        Per-set factors on the cable's rigidity (``EJ``, and ``delta_EJ`` with strand slip) and on
+        the slip law's curvature scale: the run-to-run scatter.
+    tol, max_iter : float, int
+        The strand-slip fixed point's tolerance (on ``ln chi``) and Newton budget per pass
+        (:class:`sbcal.model.cable.ElementCableModel`); a line that does not converge is an InputError.
+
+    Returns
+    -------
+    ndarray of complex, shape (n_sets, n_freq)
+        ``f_meas`` [N/m].
+    """
+    effects = _check_effects(dict(effects))
+    p = _defaults(damper, _check_params(params))
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    col = {k: np.asarray(v, dtype=float).reshape(-1, 1) for k, v in p.items()}  # (n or 1, 1)
+    geometry = {k: np.asarray(v, dtype=float) for k, v in p.items() if k not in ("EJ", "beta", "beta1", "beta2")}
+    omega = 2 * np.pi * f[None, :]
+
+    # loss factors of the cable material, per arm and line
+    b1, b2 = col.get("beta1", col["beta"]), col.get("beta2", col["beta"])
+    if "asymmetric_damping" in effects:
+        d = effects["asymmetric_damping"]
+        b1, b2 = b1 + d / 2, b2 - d / 2
+        if np.any(b1 < 0) or np.any(b2 < 0):
+            raise InputError(f"asymmetric_damping={d:g}: makes a loss factor negative (|d|/2 > beta)")
+    if "viscous_damping" in effects:
+        b1, b2 = b1 * f / effects["viscous_damping"], b2 * f / effects["viscous_damping"]
+    b1, b2 = (np.broadcast_to(b, np.broadcast_shapes(b.shape, (1, f.size))) for b in (b1, b2))
+
+    # rigidity: frequency factor on the cable's moduli
+    factor = np.ones((1, f.size))
+    if "frequency_dependent_stiffness" in effects:
+        factor = 1 + effects["frequency_dependent_stiffness"] * np.log(f / _F_REF_STIFFNESS_HZ)[None, :]
+        if np.any(factor <= 0):
+            raise InputError("frequency_dependent_stiffness: EJ(omega) <= 0 on this grid")
+    rocking = effects.get("base_rocking", 0.0)
+
+    ej_scale = np.asarray(ej_scale, dtype=float).reshape(-1, 1)
+    if "strand_slip" in effects:
+        slip = effects["strand_slip"]
+        law = law_for(slip.law)
+        lp = slip.law_params(col["EJ"][:, 0], damper.ej_static)
+        if np.any(np.asarray(lp["delta_EJ"]) <= 0):
+            raise InputError(f"strand_slip: EJ (the full-slip rigidity) must be below ej_static = {damper.ej_static:g} N m^2 "
+                             "(or give delta_EJ)")
+        # re-clamping scatter scales the cable's rigidity as a whole (EJ_min and delta_EJ together)
+        # and the law's curvature scale; the frequency factor acts on the slipped strand
+        scale = ej_scale[:, 0]
+        lp["delta_EJ"] = np.asarray(lp["delta_EJ"], dtype=float) * scale
+        lp[slip.scale_name] = lp[slip.scale_name] * np.asarray(chi0_scale, dtype=float).reshape(-1)
+        ej = col["EJ"] * ej_scale * factor
+        linear = np.stack(np.broadcast_arrays(ej * (1 + 1j * b1), ej * (1 + 1j * b2)), axis=-1)
+        model = ElementCableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter)
+        lp = {k: (np.asarray(v, dtype=float) if np.ndim(v) == 0 else np.asarray(v, dtype=float).reshape(-1))
+              for k, v in lp.items()}
+        state = model.state(damper, f, amplitude_mm_pp, linear_rigidity=linear, rocking_rad_per_m=rocking,
+                            **lp, **geometry)
+        if not state.converged.all():
+            i, k = np.argwhere(~state.converged)[0]
+            raise InputError(f"strand_slip: no convergence in {max_iter} iterations at {f[k]:g} Hz "
+                             f"(residual {state.residual[i, k]:.2g})")
+        fm = state.f_uu
+    else:
+        e1 = e2 = col["EJ"] * ej_scale * factor
+        H = arm_impedance(damper, f, ej1=e1, ej2=e2, beta1=b1, beta2=b2, **geometry)
+        fm = H[..., 0, 0] + rocking * H[..., 0, 1] if rocking else H[..., 0, 0]
+    if "fixture_mass" in effects:
+        fm = fm - omega**2 * effects["fixture_mass"]
+    if "fixture_resonance" in effects:
+        fr = effects["fixture_resonance"]
+        wr2 = (2 * np.pi * fr.freq_hz) ** 2
+        fm = fm - fr.mass_kg * omega**4 / (wr2 * (1 + 1j * fr.eta) - omega**2)
+    if "sensor_delay" in effects:
+        fm = fm * np.exp(-1j * omega * effects["sensor_delay"])
+    return fm
+
+
+# --- the bench ---------------------------------------------------------------------------------
+
+def _noise_profile(freq_hz, levels, corner_hz, width_hz):
+    """``hi + (lo - hi) / (1 + exp((f - corner) / width))``: lo below the corner, hi above."""
+    lo, hi = levels
+    return hi + (lo - hi) / (1.0 + np.exp((np.asarray(freq_hz) - corner_hz) / width_hz))
+
+
+def _factor(rng, rel_sd, n):
+    """Lognormal factors with median 1 and log standard deviation ``rel_sd``, shape (n,)."""
+    return np.exp(rel_sd * rng.standard_normal(n))
+
+
+def record(damper: Damper, config: BenchConfig, tests=DEFAULT_TESTS, *, rng: np.random.Generator,
+           freq_hz=None) -> pd.DataFrame:
+    """Run the virtual bench: ``config.runs`` runs of each test, as bench CSV rows.
+
+    Per test, in this order (all draws from ``rng``, so a seed fixes the frame):
+
+    1. re-clamping scatter, one draw per run (hence correlated over its lines): lognormal factors
+       on EJ (and ``delta_EJ``), on the loss factors and on the slip law's curvature scale; normal factors
+       ``1 + N(0, offset_scatter)`` on ``a1`` and on ``a2``;
+    2. the noise-free reading of every run (:func:`response`) at the test's amplitude per line;
+    3. measurement noise, independent per line: ``N(0, sigma(f))`` on ``ln |f|`` and on the phase,
+       ``sigma`` falling from its 4-15 Hz level to its high-frequency level (:class:`BenchConfig`);
+    4. outliers: each run with probability ``outlier_probability`` gets an offset of
+       ``+-U(1, 2) * outlier_logmag`` on ``ln |f|`` and ``+-U(1, 2) * outlier_phase_deg`` on the phase,
+       plus a linear tilt over the sweep of up to ``+-outlier_logmag`` / ``+-outlier_phase_deg``.
+
+    The phase is written unwrapped (noise may push it just past 180 deg, as the CSV contract allows).
+
+    Parameters
+    ----------
+    damper : Damper
+        Supplies the geometry; its ``name`` fills the ``damper`` column.
+    config : BenchConfig
+    tests : sequence of str
+        Test labels (:func:`test_amplitude`); default the thesis's plan :data:`DEFAULT_TESTS`.
+    rng : numpy.random.Generator
+    freq_hz : array_like, shape (n_freq,), optional
+        Frequency lines [Hz] (default :data:`sbcal.model.fem.STANDARD_GRID_HZ`).
+
+    Returns
+    -------
+    DataFrame
+        :data:`sbcal.data.bench.BENCH_COLUMNS`, ``config.runs * n_freq`` rows per test, runs numbered
+        from 1 within each test.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng: expected a numpy.random.Generator (np.random.default_rng(seed))")
+    f = STANDARD_GRID_HZ.copy() if freq_hz is None else np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    if f.ndim != 1 or f.size == 0 or not np.all(np.isfinite(f) & (f > 0)):
+        raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
+    tests = [tests] if isinstance(tests, str) else list(tests)
+    if not tests:
+        raise InputError("tests: at least one test label is needed")
+    amplitudes = [test_amplitude(label, f) for label in tests]  # check every label before any work
+    n = int(config.runs)
+    p = _defaults(damper, config.params)
+    sig_mag = _noise_profile(f, config.logmag_noise, config.noise_corner_hz, config.noise_width_hz)
+    sig_ph = _noise_profile(f, config.phase_noise_deg, config.noise_corner_hz, config.noise_width_hz)
+    ramp = (f - f.min()) / max(f.max() - f.min(), 1e-300) - 0.5  # -0.5 .. 0.5 over the sweep
+    frames = []
+    for label, amp in zip(tests, amplitudes):
+        ej_scale = _factor(rng, config.ej_scatter, n)
+        beta_scale = _factor(rng, config.beta_scatter, n)
+        chi0_scale = _factor(rng, config.chi0_scatter, n)
+        a1 = np.asarray(p.get("a1", damper.a1), dtype=float) * (1 + config.offset_scatter * rng.standard_normal(n))
+        a2 = np.asarray(p.get("a2", damper.a2), dtype=float) * (1 + config.offset_scatter * rng.standard_normal(n))
+        runs = dict(p, a1=a1, a2=a2)
+        for name in ("beta", "beta1", "beta2"):
+            if name in runs:
+                runs[name] = np.asarray(runs[name], dtype=float) * beta_scale
+        fm = response(damper, f, amp, runs, config.effects, ej_scale=ej_scale, chi0_scale=chi0_scale,
+                      tol=config.slip_tol, max_iter=config.slip_max_iter)
+        dmag = sig_mag * rng.standard_normal(fm.shape)  # on ln |f|
+        dphase = sig_ph * rng.standard_normal(fm.shape)  # [deg]
+        bad = rng.random(n) < config.outlier_probability
+        sign = np.where(rng.random((2, n)) < 0.5, -1.0, 1.0)
+        size = rng.uniform(1.0, 2.0, (2, n))
+        tilt = rng.uniform(-1.0, 1.0, (2, n))
+        for k, (delta, scale) in enumerate(((dmag, config.outlier_logmag), (dphase, config.outlier_phase_deg))):
+            delta[bad] += scale * ((sign[k] * size[k])[bad, None] + tilt[k][bad, None] * ramp)
+        phase = np.degrees(np.unwrap(np.angle(fm), axis=1))
+        phase = np.where(phase[:, :1] <= -90.0, phase + 360.0, phase)  # the contract's (-90, 270] at the first line
+        frame = curves_to_frame(damper.name, label, f, amp, fm)
+        frame["stiffness_n_per_m"] = (np.abs(fm) * np.exp(dmag)).ravel()  # exp(0) = 1: no noise, exact values
+        frame["phase_deg"] = (phase + dphase).ravel()
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)[list(BENCH_COLUMNS)]
