@@ -20,7 +20,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the target says
 import numpy as np  # noqa: E402
 
 from sbcal import STANDARD_GRID_HZ  # noqa: E402
-from sbcal.model.cable import CableModel, ElementCableModel, _resolve, _widely_solve  # noqa: E402
+from sbcal.model.cable import CableModel, _resolve
+from sbcal.model.cable_element import ElementCableModel
+from sbcal.model.cable_sections import _widely_solve  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from _slip_baseline import SlipModel  # noqa: E402
 from sbcal.model.hysteresis import DahlLaw, IwanLaw, LognormalIwanLaw  # noqa: E402

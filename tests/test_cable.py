@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from sbcal.model.cable import (DEFAULT_N_ELEMENTS, DEFAULT_SECTIONS, CableModel, ElementCableModel,
-                         segments_from_frequencies)
+from sbcal.model.cable import DEFAULT_SECTIONS, CableModel, segments_from_frequencies
+from sbcal.model.cable_element import DEFAULT_N_ELEMENTS, ElementCableModel
 from sbcal.core.errors import InputError
 from sbcal.model.fem import STANDARD_GRID_HZ, clamp_impedance, dynamic_stiffness
 from sbcal.model.hysteresis import DahlLaw, HysteresisLaw, IwanLaw, LawParameter, LognormalIwanLaw

@@ -205,7 +205,7 @@ def test_bouc_wen_limits(n):
 def test_bouc_wen_is_smooth_across_its_table_ends():
     # the table's ends continue with the limits, matched in value and slope (the sampler's
     # log-density stays smooth): the jump and the kink are at the table's own accuracy
-    from sbcal.model.hysteresis import _BW_XI, _bw_v
+    from sbcal.model.bouc_wen import _BW_XI, _bw_v
     law = BoucWenLaw()
     for n in (0.35, 1.7, 4.8):
         p = dict(BOUC, sharpness=n)

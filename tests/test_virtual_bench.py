@@ -11,7 +11,7 @@ from sbcal.data.bench import BENCH_COLUMNS, curves_to_frame, write_bench
 from sbcal.cli import main
 from sbcal.model.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, free_response
 from sbcal.model.reference import _beam_k, _beam_m
-from sbcal.model.cable import ElementCableModel
+from sbcal.model.cable_element import ElementCableModel
 from sbcal.model.hysteresis import LognormalIwanLaw
 from sbcal.simulate.virtual_bench import (
     BENCH_ELEMENTS, DEFAULT_TESTS, EFFECTS, EXTRA_EFFECTS, BenchConfig, FixtureResonance, SlipLaw, parse_effect,
@@ -138,7 +138,7 @@ def test_fixture_resonance_is_a_narrow_passive_mode(damper1):
 # --- strand slip ---------------------------------------------------------------------------------
 
 def test_strand_slip_is_the_distributed_cable(damper1):
-    # the bench's cable is sbcal.model.cable.ElementCableModel with its law and element count, followed up
+    # the bench's cable is sbcal.model.cable_element.ElementCableModel with its law and element count, followed up
     # the grid
     got = response(damper1, F, 1.0, {"EJ": 9.0, "beta": 0.1}, {"strand_slip": LAW})[0]
     model = ElementCableModel(LognormalIwanLaw(), n_elements=6)

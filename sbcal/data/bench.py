@@ -21,7 +21,10 @@ from ..core._io import atomic_path
 from ..core.errors import InputError
 
 
-__all__ = ["BENCH_COLUMNS", "THESIS_TESTS", "FREQ_REL_TOL", "FREQ_STEP_FRACTION", "FREQ_NEAR_REL", "TestData", "BenchData", "test_label", "curves_to_frame", "write_bench", "rows_digest"]
+__all__ = [
+    "BENCH_COLUMNS", "THESIS_TESTS", "FREQ_REL_TOL", "FREQ_STEP_FRACTION", "FREQ_NEAR_REL", "TestData", "BenchData",
+    "test_label", "curves_to_frame", "write_bench", "rows_digest",
+]
 
 BENCH_COLUMNS = (
     "damper", "test", "run", "frequency_hz", "amplitude_mm_pp", "stiffness_n_per_m", "phase_deg",

@@ -14,7 +14,11 @@ from ..core.errors import InputError
 from .bench import TestData, _nanmedian0, _readonly
 
 
-__all__ = ["DEFAULT_Z_THRESHOLD", "NOISE_FLOOR", "BRANCH_GAP", "BRANCH_MIN_FRACTION", "BRANCH_MIN_RUNS", "BRANCH_MAX_LINE_FRACTION", "Branches", "CleanedTest", "quality_table", "run_scores", "find_branches", "remove_outlier_runs"]
+__all__ = [
+    "DEFAULT_Z_THRESHOLD", "NOISE_FLOOR", "BRANCH_GAP", "BRANCH_MIN_FRACTION", "BRANCH_MIN_RUNS",
+    "BRANCH_MAX_LINE_FRACTION", "Branches", "CleanedTest", "quality_table", "run_scores", "find_branches",
+    "remove_outlier_runs",
+]
 
 DEFAULT_Z_THRESHOLD = 3.0
 """Default run-score threshold of :func:`remove_outlier_runs` (the thesis used Z = 2 or 3).

@@ -60,7 +60,10 @@ from .cable_run import (CableRun, _cable_params, _geometry, _is_calibration_damp
                         _unit_draws, load_cable_run)
 
 
-__all__ = ["QUANTILES", "EXTRAPOLATION_MARGIN", "RESONANCE_STEP", "PROMINENCE", "ModelError", "model_error_of", "Resonance", "Prediction", "predict"]
+__all__ = [
+    "QUANTILES", "EXTRAPOLATION_MARGIN", "RESONANCE_STEP", "PROMINENCE", "ModelError", "model_error_of",
+    "Resonance", "Prediction", "predict",
+]
 
 QUANTILES = (0.05, 0.5, 0.95)
 """The band's lower end, the median and the upper end (a 90 % band)."""

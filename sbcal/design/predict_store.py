@@ -15,7 +15,10 @@ from .predict_plots import plot_prediction, plot_sweep
 from .sweep import SweepResult, _unjson
 
 
-__all__ = ["prediction_dir", "write_csv", "store_prediction", "read_prediction", "store_sweep", "read_sweep", "stored_predictions"]
+__all__ = [
+    "prediction_dir", "write_csv", "store_prediction", "read_prediction", "store_sweep", "read_sweep",
+    "stored_predictions",
+]
 
 # --- the store -------------------------------------------------------------------------------------
 

@@ -19,7 +19,10 @@ from .span import SpanResult, _jsonable, _positions, _q, energy_balance
 from .vibration import _wind_check
 
 
-__all__ = ["plot_span", "SPAN_STORE", "AMPLITUDE_MARGIN", "SpanStudy", "span_study", "span_dir", "store_span", "read_span", "stored_spans"]
+__all__ = [
+    "plot_span", "SPAN_STORE", "AMPLITUDE_MARGIN", "SpanStudy", "span_study", "span_dir", "store_span", "read_span",
+    "stored_spans",
+]
 
 # ---------------------------------------------------------------------------------------------
 # Plot

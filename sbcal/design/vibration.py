@@ -13,7 +13,10 @@ from ..core.errors import InputError
 from .conductor import WIND_CURVES, Conductor
 
 
-__all__ = ["X_B", "strouhal_band", "wind_power_curve", "wind_curve_range", "bending_amplitude", "poffenberger_swart", "safe_border_line", "fatigue_limit"]
+__all__ = [
+    "X_B", "strouhal_band", "wind_power_curve", "wind_curve_range", "bending_amplitude", "poffenberger_swart",
+    "safe_border_line", "fatigue_limit",
+]
 
 X_B = 0.089
 """Distance from the last point of contact at which Y_b is taken [m] (pallas-dohl damage.py: xb=0.089)."""

@@ -43,7 +43,7 @@ import pandas as pd
 from ..core.errors import InputError
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
 from ..data.labels import parse_label
-from ..model.cable import ElementCableModel
+from ..model.cable_element import ElementCableModel
 from ..model.damper import Damper
 from ..model.fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
 from ..model.hysteresis import law_for
@@ -93,14 +93,14 @@ _LAW_DEFAULTS = {"dahl": {}, "iwan": {"micro_exponent": -0.5, "macro_ratio": 0.0
                  "iwan5": {"chi_micro": 1e-6, "density_exponent": -0.5, "macro_ratio": 0.0},
                  "iwan_tail": {"chi_micro": 1e-6, "density_exponent": -0.5, "tail_exponent": -1.5}}
 BENCH_ELEMENTS = 12
-"""Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.model.cable.DEFAULT_N_ELEMENTS`)."""
+"""Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.model.cable_element.DEFAULT_N_ELEMENTS`)."""
 
 
 @dataclass(frozen=True)
 class SlipLaw:
     """The bench cable's strand slip: a hysteresis law of :mod:`sbcal.model.hysteresis` along both arms.
 
-    The cable is :class:`sbcal.model.cable.ElementCableModel` with ``elements`` Hermite elements per arm,
+    The cable is :class:`sbcal.model.cable_element.ElementCableModel` with ``elements`` Hermite elements per arm,
     each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``; ``EJ_min`` is the bench's ``EJ``
     parameter and ``beta_material`` its ``beta``. Each run follows the branch a stepped-sine sweep up
     the grid reaches (continuation from line to line).
@@ -345,7 +345,7 @@ class BenchConfig:
         and on the phase, tilted linearly over the sweep by up to the same amount.
     slip_tol : float
         Convergence tolerance of the strand-slip fixed point (``max |ln T(chi) - ln chi|`` over the
-        elements, :class:`sbcal.model.cable.ElementCableModel`).
+        elements, :class:`sbcal.model.cable_element.ElementCableModel`).
     slip_max_iter : int
         Newton budget per pass of the fixed point (InputError if a line does not converge).
     """
@@ -434,7 +434,7 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         the slip law's curvature scale: the run-to-run scatter.
     tol, max_iter : float, int
         The strand-slip fixed point's tolerance (on ``ln chi``) and Newton budget per pass
-        (:class:`sbcal.model.cable.ElementCableModel`); a line that does not converge is an InputError.
+        (:class:`sbcal.model.cable_element.ElementCableModel`); a line that does not converge is an InputError.
 
     Returns
     -------

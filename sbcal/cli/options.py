@@ -1,0 +1,112 @@
+"""What the subcommands share: the one-line-error parser, option groups, value parsers, the bench and the
+pipeline settings from the options."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.workers import default_workers
+
+
+__all__ = [
+    "Parser", "parse_set", "parse_frequencies", "bench_options", "workers_option", "scale_options", "bench_for",
+    "settings_from", "print_summary",
+]
+
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage dump) and exit status 2."""
+
+    def error(self, message):
+        raise InputError(f"{self.prog}: {message}")
+
+
+def parse_set(items) -> dict:
+    """``["EJ=9", "beta=0.3"]`` -> ``{"EJ": 9.0, "beta": 0.3}``, names checked against the model."""
+    from ..model.fem import PARAMETER_NAMES
+
+    out = {}
+    for item in items or ():
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise InputError(f"--set {item!r}: expected NAME=VALUE")
+        if name not in PARAMETER_NAMES:
+            raise InputError(f"--set {item!r}: unknown parameter {name!r}; known: {', '.join(PARAMETER_NAMES)}")
+        try:
+            x = float(value)
+        except ValueError:
+            raise InputError(f"--set {item!r}: {value!r} is not a number") from None
+        if not np.isfinite(x):
+            raise InputError(f"--set {item!r}: value is not finite")
+        out[name] = x
+    return out
+
+
+def parse_frequencies(text: str) -> np.ndarray:
+    from ..model.fem import STANDARD_GRID_HZ
+
+    if text == "standard":
+        return STANDARD_GRID_HZ.copy()
+    try:
+        f = np.array([float(x) for x in text.split(",") if x.strip()])
+    except ValueError:
+        raise InputError(f"--frequencies {text!r}: expected 'standard' or comma-separated numbers [Hz]") from None
+    if f.size == 0 or not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise InputError(f"--frequencies {text!r}: frequencies must be finite and > 0")
+    return f
+
+
+def bench_options(p, what="bench file"):
+    p.add_argument("--bench", metavar="PATH", help=f"{what}: .csv, .csv.gz, .xlsx or .parquet (default: the bundled data)")
+    p.add_argument("--sheet", metavar="NAME", help="read only this sheet of an .xlsx workbook (default: every sheet)")
+
+
+def workers_option(p, what):
+    p.add_argument("--workers", type=int, default=default_workers(), metavar="N",
+                   help=f"{what} (default: 2 or the cores there are)")
+
+
+def scale_options(p, workers_help="jobs in parallel local processes"):
+    workers_option(p, workers_help)
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="send the jobs to a running Dask distributed cluster (e.g. tcp://host:8786; "
+                        "pip install \"sbcal[dask]\")")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def bench_for(args):
+    """The ``--bench`` file, or the bundled data."""
+    from ..data.readers import default_bench_path, load_bench
+
+    if args.bench:
+        return load_bench(args.bench, sheet=getattr(args, "sheet", None))
+    path = default_bench_path()
+    if not path.is_file():
+        raise InputError(f"no bundled bench data ({path} is missing); pass --bench PATH")
+    return load_bench(path, sheet=getattr(args, "sheet", None))
+
+
+def settings_from(args, **extra):
+    from ..pipeline import Settings
+
+    if getattr(args, "workers", 1) < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    if args.priors:
+        from ..pipeline import file_digest
+
+        file_digest(args.priors)  # fail early on a missing prior file
+    return Settings(paramset=getattr(args, "params", "theta1"), seed=args.seed, priors=args.priors,
+                    workers=getattr(args, "workers", 1), **extra)
+
+
+def print_summary(name, t, paramset, s):
+    p = s["parameters"]
+    flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
+    print(f"{name} {t} {paramset}: EJ {p['EJ']['median']:.3g} [{p['EJ']['q05']:.3g}, "
+          f"{p['EJ']['q95']:.3g}] N m^2, " + ", ".join(
+              f"{n} {p[n]['median']:.3g} [{p[n]['q05']:.3g}, {p[n]['q95']:.3g}]"
+              for n in p if n.startswith("beta")) + f", R-hat max {s['r_hat_max']:.3f}, "
+          f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.1f} s{flag}")

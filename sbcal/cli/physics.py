@@ -1,0 +1,154 @@
+"""Subcommands of the missing physics and the cable law: ``diagnose``, ``cable``."""
+
+from __future__ import annotations
+
+from ..core.errors import InputError
+from .options import bench_for, bench_options, scale_options, settings_from, workers_option
+
+
+__all__ = ["add_diagnose", "cmd_diagnose", "add_cable", "cmd_cable"]
+
+# --- diagnose ----------------------------------------------------------------------------------
+
+def add_diagnose(sub):
+    p = sub.add_parser("diagnose", help="locate the misfit, name the missing physics, model it, show the fit improve",
+                       description="Fit the per-test model, locate where the recordings leave its predictive band, "
+                                   "refit the catalogue's physics extensions the residuals point to, compare them "
+                                   "by PSIS-LOO and give a verdict (docs/diagnose.md).")
+    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
+                   help="bundled damper name or TOML path (default damper1)")
+    bench_options(p)
+    p.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels (default: all of the damper's)")
+    p.add_argument("--priors", metavar="PATH", help="prior file of the base parameters (default: the bundled one)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--json", metavar="OUT", help="write the diagnosis as JSON")
+    p.add_argument("--curves", metavar="OUT.csv",
+                   help="write the fitted curves (posterior median per line) of the per-test model and of the verdict's "
+                        "model in the bench CSV columns plus a 'model' column")
+    p.add_argument("--runs", default="runs", metavar="DIR",
+                   help="also store it as DIR/<damper>/diagnose.json for the report, and a strand-slip verdict's "
+                        "cable law as DIR/<damper>/cable-<state>/ (default runs/)")
+    scale_options(p, "fits in parallel local processes")
+    return p
+
+
+def cmd_diagnose(args) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    from ..core._io import write_json
+    from ..diagnosis.diagnose import diagnose
+    from ..model.damper import resolve_damper
+    from ..pipeline import diagnose_inputs, executor_for
+
+    damper = resolve_damper(args.damper)
+    bench = bench_for(args)
+    settings = settings_from(args)
+    config = replace(settings.diagnose, workers=args.workers)
+    with executor_for(args.scheduler) as executor:
+        if executor is not None:  # the diagnosis as one job on the cluster
+            result = executor.submit(diagnose, damper, bench, args.tests, seed=args.seed,
+                                     config=replace(config, workers=1), progress=False,
+                                     prior_path=args.priors, store=args.runs).result()
+        else:
+            result = diagnose(damper, bench, args.tests, seed=args.seed, config=config, progress=not args.quiet,
+                              prior_path=args.priors, store=args.runs)
+    result["command"] = args.command_line
+    if args.tests is None:  # a whole-damper diagnosis: 'sbcal run' may reuse it while its inputs hold
+        result["inputs"] = diagnose_inputs(bench, damper, settings)
+    if args.json:
+        write_json(args.json, result, indent=1)
+    stored = Path(args.runs) / damper.name / "diagnose.json"
+    write_json(stored, result, indent=1)
+    if args.curves:
+        from ..data.bench import write_bench
+        from ..diagnosis.diagnose import curves_frame
+
+        write_bench(curves_frame(result), args.curves)
+    print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else ""))
+    for b in result["bands"][:12]:
+        print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
+    if len(result["bands"]) > 12:
+        print(f"  ... {len(result['bands']) - 12} more bands")
+    for r in result["ranking"]:
+        print(f"  {r['effect']:30s} delta ELPD {r['delta_elpd']:10.1f} +- {r['se']:7.1f}, "
+              f"removes {r['explained']:.0%} of the misfit in the bands")
+    if result["parameters"]:
+        print(f"  {result['parameters']['words']}")
+    b, a = result["before"], result["after"]
+    print(f"  before: rms z {b['rms_z']:.2f}, 90% band coverage {b['coverage_90']:.3f}, "
+          f"{b['lines_off']}/{b['n_lines']} lines off")
+    if a is not b and a["effect"] != "baseline":
+        flag = "" if a["converged"] else f"  NOT CONVERGED ({'; '.join(a['not_converged'].values())})"
+        print(f"  after ({a['effect']}): rms z {a['rms_z']:.2f}, 90% band coverage {a['coverage_90']:.3f}, "
+              f"{a['lines_off']}/{a['n_lines']} lines off{flag}")
+    sec = result.get("secondary")
+    if sec and sec.get("effect"):
+        print(f"  secondary: {sec['effect']}: {sec['parameters']['words']}")
+    elif sec is not None:
+        print("  secondary: none" + ("" if sec["misfit"] else " (no misfit left beyond chance)"))
+    print(f"stored in {stored}" + (f" and {args.json}" if args.json else "")
+          + (f"; curves in {args.curves}" if args.curves else ""))
+    return 0
+
+
+# --- cable -------------------------------------------------------------------------------------
+
+_LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contain Dahl's and Segalman's laws
+
+
+def add_cable(sub):
+    from ..model.hysteresis import FITTED_LAWS
+
+    p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
+                       description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
+                                   "another state) over all its tests at once, on the distributed cable model "
+                                   "(docs/cable.md), and store each state's posterior as "
+                                   "<runs>/<damper>/cable-<state>/posterior.nc + summary.json.")
+    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
+                   help="bundled damper name or TOML path (default damper1)")
+    bench_options(p)
+    p.add_argument("--law", default="best", choices=list(FITTED_LAWS) + list(_LAW_ALIASES) + ["best"],
+                   help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
+                        "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), iwan_tail (Iwan "
+                        "whose density ends in a power-law tail; compared only where every cable state has two tests "
+                        "or more), or best (every family that can be compared, the best by PSIS-LOO; default)")
+    p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
+    workers_option(p, "processes per fit")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def cmd_cable(args) -> int:
+    from dataclasses import asdict
+    from pathlib import Path
+
+    from ..inference.cable_fit import fit_damper_cable, store_cable
+    from ..model.damper import resolve_damper
+
+    damper = resolve_damper(args.damper)
+    bench = bench_for(args)
+    if damper.name not in bench.dampers():
+        raise InputError(f"{bench.source}: no rows of damper {damper.name!r} (has: {', '.join(bench.dampers())})")
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    laws = None if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
+    fits, comparison = fit_damper_cable(damper, bench, laws=laws, seed=args.seed, prior_path=args.priors,
+                                        workers=args.workers, progress=not args.quiet)
+    best = comparison["best"]
+    for state, fit in sorted(fits[best].items()):
+        out = Path(args.runs) / damper.name / f"cable-{state}"
+        s = store_cable(fit, out, meta={"seed": args.seed, "made_by": args.command_line, "damper_values": asdict(damper)},
+                        comparison=comparison if len(fits) > 1 else None)
+        flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
+        vals = ", ".join(f"{n} {p['median']:.3g} [{p['q05']:.3g}, {p['q95']:.3g}]" for n, p in s["parameters"].items())
+        print(f"{damper.name} cable {state} ({best}, {len(fit.tests)} tests): {vals}; R-hat max {s['r_hat_max']:.3f}, "
+              f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.0f} s{flag}")
+        print(f"  stored in {out}/")
+    if len(fits) > 1:
+        print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
+            f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" for law, v in comparison["families"].items())
+            + f" (best: {best})")
+    return 0

@@ -1,0 +1,310 @@
+"""The fast cable model's sections (:class:`sbcal.model.cable.CableModel`): each law's section compliance
+tabulated over curvature and looked up, and the statically determinate arms' Gauss sections."""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .hysteresis import HysteresisLaw
+
+
+__all__ = []
+
+_FD_LOG_STEP = 1e-6  # forward-difference step of the law's slope in ln chi
+_TINY = 1e-300
+# curvatures [1/m] scanned for the law's transition (where the slip part has lost half its stuck
+# value); the compliance table spans ``table_decades`` either side of it
+_SCAN = 10.0 ** np.arange(-9.0, 3.01, 1.0 / 3.0)
+# --- the fast model: statically determinate arms ---------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class _Compliance:
+    """Section compliance ``K = 1 / EJ*(a)`` per parameter set as a function of ``y = ln m^2``,
+    ``m = a |EJ*(a)| = |M|`` [N m] the section's moment amplitude.
+
+    Nodes uniform in the curvature ``u = ln a`` (j = 0 .. n - 1), so they crowd where the moment
+    saturates while the curvature runs on (a uniform grid in ``y`` would step over that knee); on
+    each interval ``[y_j, y_j+1]`` ``K`` is the cubic Hermite interpolant of the nodes' ``K`` and
+    ``dK/dy``, stored as power coefficients in ``y - y_j``. A section finds its interval through a
+    uniform grid of buckets in ``y`` (the first interval of each bucket, then ``steps`` comparisons
+    with the next node): gathers, no search. Beyond the nodes, ``K -> k_ref + (K_end - k_ref) exp(p (y - y_end))`` with ``k_ref`` the stuck (below) or
+    fully slipped (above) compliance and ``p`` matching the end node's slope.
+
+    Attributes
+    ----------
+    coef : ndarray, shape (9, n_sets * (n - 1))
+        Per interval ``Re c0..c3, Im c0..c3`` of ``K = c0 + c1 v + c2 v^2 + c3 v^3``, ``v = y - y_j``,
+        then ``y_j``.
+    upper : ndarray, shape (n_sets * (n - 1),)
+        ``y_j+1`` of each interval (+inf for each set's last).
+    first : ndarray of intp, shape (n_sets * n_buckets,)
+        Global index of the interval holding each bucket's lower edge.
+    y0, inv_w : ndarray, shape (n_sets,)
+        First node's ``y`` and the inverse bucket width; ``y_end`` the last node's ``y``.
+    n, n_buckets, steps : int
+    ends : ndarray of complex, shape (n_sets, 2)
+        ``K`` at the first and last node.
+    refs : ndarray of complex, shape (n_sets, 2)
+        Stuck and fully slipped compliance.
+    rates : ndarray of complex, shape (n_sets, 2)
+        Tail exponents ``p`` [per unit y] below and above.
+    monotone : ndarray of bool, shape (n_sets,)
+        ``a |EJ*(a)|`` increases over the table (a section's moment fixes its curvature).
+    """
+
+    coef: np.ndarray
+    upper: np.ndarray
+    first: np.ndarray
+    y0: np.ndarray
+    y_end: np.ndarray
+    inv_w: np.ndarray
+    n: int
+    n_buckets: int
+    steps: int
+    ends: np.ndarray
+    refs: np.ndarray
+    rates: np.ndarray
+    monotone: np.ndarray
+
+    def per_entry(self, row):
+        """``(y0, inv_w, bucket offset)`` of the parameter sets ``row`` (cached for the last ``row``)."""
+        cache = self.__dict__.get("_per_entry")
+        if cache is None or cache[0] is not row:
+            cache = (row, self.y0[row], self.inv_w[row], row * self.n_buckets)
+            object.__setattr__(self, "_per_entry", cache)
+        return cache[1:]
+
+
+def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> _Compliance:
+    """Pack nodes ``y`` (n_sets, n) increasing, ``K`` and ``dK/dy`` there into a :class:`_Compliance`."""
+    s, n = y.shape
+    rows = np.arange(s)
+    h = np.diff(y, axis=1)
+    h = np.where(h > 0, h, 1.0)
+    ka, kb, da, db = k[:, :-1], k[:, 1:], h * dk[:, :-1], h * dk[:, 1:]
+    c = np.stack([ka, da / h, (3 * (kb - ka) - 2 * da - db) / h**2, (2 * (ka - kb) + da + db) / h**3])
+    coef = np.concatenate([c.real, c.imag, y[None, :, :-1]]).reshape(9, -1)
+    upper = y[:, 1:].copy()
+    upper[:, -1] = np.inf
+    y0, y_end = y[:, 0], y[:, -1]
+    span = np.maximum(y_end - y0, _TINY)
+    nb = n_buckets_per_node * (n - 1)
+    while True:
+        # first interval of each bucket; the most nodes inside one bucket is the comparisons needed
+        edges = y0[:, None] + span[:, None] * (np.arange(nb) / nb)[None, :]
+        z = (y - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
+        ze = (edges - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
+        pos = np.searchsorted(z.ravel(), ze.ravel(), side="right").reshape(s, nb) - n * rows[:, None]
+        first = np.clip(pos - 1, 0, n - 2)
+        steps = int(np.max(np.diff(np.concatenate([pos, np.full((s, 1), n)], axis=1), axis=1), initial=0))
+        if steps <= max_steps or nb >= 64 * n:
+            break
+        nb *= 2
+    first = (first + (n - 1) * rows[:, None]).reshape(-1).astype(np.intp)
+    ends = k[:, [0, -1]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rates = dk[:, [0, -1]] / (ends - refs)
+    # a tail must decay towards its limit; otherwise hold the end value
+    ok = np.isfinite(rates) & (np.array([1.0, -1.0]) * rates.real > 0)
+    rates = np.where(ok, rates, 0.0)
+    return _Compliance(coef=np.ascontiguousarray(coef), upper=upper.reshape(-1), first=first, y0=y0, y_end=y_end,
+                       inv_w=nb / span, n=n, n_buckets=nb, steps=max(steps, 1), ends=ends, refs=refs,
+                       rates=rates, monotone=np.ones(s, dtype=bool))
+
+
+def _linear_compliance(lin) -> _Compliance:
+    """The table of a linear cable: ``K = 1 / lin`` for every moment."""
+    k = np.repeat((1.0 / lin)[:, None], 2, axis=1)
+    # one interval over every representable |M|^2 (ln of a double lies within +-745)
+    y = np.repeat(np.array([[-2000.0, 2000.0]]), lin.size, axis=0)
+    return _hermite_table(y, k, np.zeros_like(k), k.copy())
+
+
+def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float) -> _Compliance:
+    """Tabulate ``K(y)`` for each parameter set.
+
+    ``lp``: the law's parameters, each (n_sets, 1); ``lin = EJ_min (1 + i beta_material)`` (n_sets,).
+    A coarse scan finds the law's transition (the curvature where the slip part has lost half its
+    stuck value); ``n`` nodes uniform in ``ln a`` span ``decades`` either side of it. Two law
+    evaluations of ``n`` curvatures per set (``EJ*`` and a forward difference for its slope): the
+    nodes' moments ``m = a |EJ*(a)|`` need no inversion.
+    """
+    s = lin.size
+    rows = np.arange(s)
+    stuck = law.slip_rigidity(np.zeros((s, 1)), **lp)[:, 0]
+    ratio = np.abs(law.slip_rigidity(_SCAN[None, :], **lp)) / np.maximum(np.abs(stuck), _TINY)[:, None]
+    below = ratio < 0.5
+    k = np.where(below.any(axis=1), below.argmax(axis=1), _SCAN.size // 2).clip(1, _SCAN.size - 1)
+    r0, r1 = ratio[rows, k - 1], ratio[rows, k]
+    frac = np.clip((r0 - 0.5) / np.maximum(r0 - r1, _TINY), 0.0, 1.0)
+    u_mid = np.log(_SCAN[k - 1]) + frac * np.log(_SCAN[1] / _SCAN[0])
+
+    span = decades * np.log(10.0)
+    u = u_mid[:, None] + np.linspace(-span, span, n)[None, :]
+    e = lin[:, None] + law.slip_rigidity(np.exp(u), **lp)
+    de = (lin[:, None] + law.slip_rigidity(np.exp(u + _FD_LOG_STEP), **lp) - e) / _FD_LOG_STEP
+    y = 2.0 * (u + np.log(np.abs(e)))
+    dy_du = 2.0 * (1.0 + (de / e).real)
+    kk = 1.0 / e
+    dk = -de / (e * e) / np.where(dy_du > 0, dy_du, 1.0)
+    refs = np.stack([1.0 / (lin + stuck), 1.0 / lin], axis=1)
+    table = _hermite_table(y, kk, dk, refs)
+    monotone = (np.all(dy_du > 0, axis=1) & np.all(np.diff(y, axis=1) > 0, axis=1)
+                & np.all(np.isfinite(table.coef.reshape(9, s, -1)), axis=(0, 2)))
+    return replace(table, monotone=monotone)
+
+
+class _Work:
+    """Scratch arrays of the section arithmetic, kept per thread across calls.
+
+    ``get(name, shape)`` is a contiguous view of the first ``prod(shape)`` elements of the buffer
+    ``name`` (grown when too small, never shrunk). The hot loop writes into memory it already
+    owns: a fresh ~1 MB array costs its page faults, more than the arithmetic done on it, and a
+    sampler calls the model ~10^4 times with the same shapes. Every element read in a call is
+    written earlier in that call, so the results do not depend on the buffers' history.
+    """
+
+    _local = threading.local()
+
+    @classmethod
+    def get(cls, name, shape, dtype=float):
+        buffers = cls._local.__dict__.setdefault("buffers", {})
+        n = math.prod(shape)
+        buf = buffers.get((name, np.dtype(dtype)))
+        if buf is None or buf.size < n:
+            buf = buffers[(name, np.dtype(dtype))] = np.empty(n, dtype=dtype)
+        return buf[:n].reshape(shape)
+
+
+def _lookup(table: _Compliance, m2, row, out=None, log=True):
+    """Section compliance and its slope from the table.
+
+    ``m2 = |M|^2`` [(N m)^2], shape (..., b) (``log=False``: ``ln |M|^2`` already); ``row`` (b,)
+    the parameter set of each entry. Returns ``(Kr, Ki, Dr, Di)``, ``D = dK/dy`` (written into
+    ``out``, four arrays of m2's shape, when given). Scratch from :class:`_Work`.
+    """
+    shape = m2.shape
+    y, x = _Work.get("y", shape), _Work.get("x", shape)
+    if log:
+        with np.errstate(divide="ignore"):
+            np.log(m2, out=y)
+    else:
+        y[...] = m2
+    # bucket, its first interval, then the comparisons with the next node
+    y0, inv_w, offset = table.per_entry(row)
+    np.subtract(y, y0, out=x)
+    x *= inv_w
+    outside = x.min() < 0.0 or x.max() > table.n_buckets
+    if outside:
+        flat = x.reshape(-1)
+        where = np.flatnonzero((flat < 0.0) | (flat > table.n_buckets))
+        side = flat[where] > 0.0
+    np.clip(x, 0.0, table.n_buckets - 1, out=x)
+    j = _Work.get("j", shape, np.intp)
+    np.copyto(j, x, casting="unsafe")
+    j += offset
+    np.take(table.first, j, out=j)
+    for _ in range(table.steps):
+        np.take(table.upper, j, out=x)
+        j += y >= x
+    cf = _Work.get("cf", (9,) + shape)
+    np.take(table.coef, j, axis=1, out=cf)  # one contiguous array per coefficient
+    v = cf[8]
+    np.subtract(y, v, out=v)
+    out = tuple(np.empty(shape) for _ in range(4)) if out is None else out
+    tmp = x
+    for c0, c1, c2, c3, k, d in ((cf[0], cf[1], cf[2], cf[3], out[0], out[2]),
+                                 (cf[4], cf[5], cf[6], cf[7], out[1], out[3])):
+        # Horner in place: h1 = c3 v + c2, h2 = h1 v + c1, K = h2 v + c0; dK/dy = h2 + v (2 h1 - c2)
+        c3 *= v
+        c3 += c2
+        np.multiply(c3, v, out=tmp)
+        c1 += tmp
+        np.multiply(c1, v, out=k)
+        k += c0
+        c3 *= 2.0
+        c3 -= c2
+        c3 *= v
+        np.add(c3, c1, out=d)
+    if outside:
+        _tails(table, y, row, out, where, side)
+    return out
+
+
+def _tails(table, y, row, out, where, side):
+    """Beyond the nodes, in place: ``K = k_ref + (K_end - k_ref) exp(p (y - y_end))``.
+
+    ``y`` (..., b) the sections' ``ln |M|^2``; ``out`` the four (Kr, Ki, Dr, Di) arrays; ``where``
+    the flat indices of the sections beyond the nodes, ``side`` True above the last one.
+    """
+    at = np.unravel_index(where, y.shape)
+    r = row[at[-1]]
+    side = side.astype(np.intp)
+    ref = table.refs[r, side]
+    gap = table.ends[r, side] - ref
+    rate = table.rates[r, side]
+    edge = np.where(side == 1, table.y_end[r], table.y0[r])
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = gap * np.exp(rate * (y[at] - edge))
+    e = np.where(np.isfinite(e), e, 0.0)
+    k = ref + e
+    d = rate * e
+    for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
+        dst[at] = src
+
+
+def _widely_solve(x, y, r):
+    """Solve ``X d + Y conj(d) = r`` for d (2 complex per entry) by 2x2 complex eliminations.
+
+    ``x, y``: symmetric 2x2 complex matrices as arrays (3, b) of (a00, a01, a11); ``r`` (2, b).
+    Conjugating gives ``conj(d) = conj(X)^-1 (conj(r) - conj(Y) d)``, hence
+    ``(X - W conj(Y)) d = r - W conj(r)`` with ``W = Y conj(X^-1)``. Returns d, (2, b).
+    """
+    x00, x01, x11 = x
+    y00, y01, y11 = y
+    idet = np.conj(1.0 / (x00 * x11 - x01 * x01))
+    i00, i01, i11 = np.conj(x11) * idet, -np.conj(x01) * idet, np.conj(x00) * idet  # conj(X^-1)
+    w00, w01 = y00 * i00 + y01 * i01, y00 * i01 + y01 * i11
+    w10, w11 = y01 * i00 + y11 * i01, y01 * i01 + y11 * i11
+    c00, c01, c11 = np.conj(y)
+    s00, s01 = x00 - (w00 * c00 + w01 * c01), x01 - (w00 * c01 + w01 * c11)
+    s10, s11 = x01 - (w10 * c00 + w11 * c01), x11 - (w10 * c01 + w11 * c11)
+    r0, r1 = r
+    c0, c1 = np.conj(r0), np.conj(r1)
+    v0, v1 = r0 - (w00 * c0 + w01 * c1), r1 - (w10 * c0 + w11 * c1)
+    idet = 1.0 / (s00 * s11 - s01 * s10)
+    return np.stack([(s11 * v0 - s01 * v1) * idet, (s00 * v1 - s10 * v0) * idet])
+
+
+@dataclass(frozen=True, eq=False)
+class _Arms:
+    """Per-(set, line, arm) constants of the statically determinate arms, flattened on one batch axis
+    b = (set * n_freq + line) * 2 + arm; arm-local frame (s from the clamp to the mass node).
+
+    In the scaled unknowns ``p = (V L, M_tip)`` [N m] (the moment ``M = p0 eta + p1``, ``eta = 1 - s/L``)
+    the node's equation (its inertia balancing the load) is ``p = Mm . S(p) + c``, with
+    ``S(p) = sum_q w_q (eta_q, 1) K_q M_q`` the flexibility integral (per unit length: the node's
+    motion relative to the clamp's rigid motion is ``diag(L^2, L) S``). It is solved in the form
+    ``N p - S(p) - N c = 0``, ``N = Mm^-1``; the vertical clamp force is ``fa p0 + fb p1 + fc``.
+    """
+
+    n: np.ndarray  # (3, b): N = Mm^-1 as (n00, n01, n11), Mm = omega^2 L diag(L, 1) M_node diag(L, 1)
+    nc: np.ndarray  # (2, b): N c, c = omega^2 diag(L, 1) (M_node q_rigid + M_node,clamp q_clamp)
+    force: tuple  # (fa, fb, fc) real
+    row: np.ndarray  # table row (parameter set) of each entry, intp
+    length: np.ndarray  # arm length [m]
+
+    def take(self, idx):
+        """The constants of the entries ``idx``."""
+        return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force),
+                     row=self.row[idx], length=self.length[idx])
+
+
+def _gauss(q: int):
+    """Gauss-Legendre on [0, 1]: eta nodes (from the mass node, eta = 1 - s/L) and weights."""
+    x, w = np.polynomial.legendre.leggauss(q)
+    return 0.5 * (1.0 - x), 0.5 * w

@@ -1,0 +1,140 @@
+"""What every hysteresis law is: its parameters, the Jenkins element, the first-harmonic rigidity and
+Masing's rule (:class:`HysteresisLaw`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ..core.errors import InputError
+
+
+__all__ = ["LawParameter", "HysteresisLaw", "jenkins_rigidity"]
+
+
+@dataclass(frozen=True)
+class LawParameter:
+    """Name, SI unit and meaning of one law parameter."""
+
+    name: str
+    unit: str
+    meaning: str
+
+
+_DELTA_EJ = LawParameter("delta_EJ", "N m^2", "rigidity the slip part adds while the wires stick (EJ_max - EJ_min)")
+
+
+def jenkins_rigidity(x):
+    """Describing function of a Jenkins element (unit spring in series with a slider), per unit stiffness.
+
+    ``x = phi / chi_a`` is the element's slip curvature over the amplitude. Stuck (``x >= 1``): 1.
+    Slipping (Caughey 1960), with ``theta = arccos(1 - 2 x)``::
+
+        Re = (theta - sin(theta) cos(theta)) / pi,    Im = 4 x (1 - x) / pi = sin(theta)^2 / pi
+
+    Parameters
+    ----------
+    x : array_like
+        ``phi / chi_a`` >= 0.
+
+    Returns
+    -------
+    ndarray of complex, shape of ``x``
+    """
+    x = np.asarray(x, dtype=float)
+    xs = np.clip(x, 0.0, 1.0)
+    theta = np.arccos(1.0 - 2.0 * xs)
+    re = (theta - np.sin(theta) * np.cos(theta)) / np.pi
+    return np.where(x >= 1.0, 1.0 + 0j, re + 1j * 4.0 * xs * (1.0 - xs) / np.pi)
+
+
+@dataclass(frozen=True)
+class HysteresisLaw:
+    """Base of the strand-slip law families.
+
+    Subclasses set :attr:`name` and :attr:`parameters` and implement :meth:`_rigidity` (the
+    describing function on validated, broadcast arrays) and :meth:`steady_loop`.
+    """
+
+    name: ClassVar[str] = ""
+    parameters: ClassVar[tuple] = ()
+    min_tests: ClassVar[int] = 1
+    """Tests (amplitudes) a cable state needs before the family is compared on it."""
+
+    @property
+    def parameter_names(self) -> tuple:
+        """The law's parameter names, in order."""
+        return tuple(p.name for p in self.parameters)
+
+    def _arrays(self, params: dict) -> dict:
+        names = self.parameter_names
+        missing = [n for n in names if n not in params]
+        unknown = sorted(set(params) - set(names))
+        if missing or unknown:
+            raise InputError(f"{self.name} law: expected parameters {', '.join(names)}"
+                             + (f"; missing {missing[0]!r}" if missing else f"; unknown {unknown[0]!r}"))
+        return {n: np.asarray(params[n], dtype=float) for n in names}
+
+    def valid(self, **params) -> np.ndarray:
+        """Boolean mask (broadcast shape of the parameters): the parameters lie in the law's domain."""
+        p = self._arrays(params)
+        ok = np.ones(np.broadcast_shapes(*(v.shape for v in p.values())), dtype=bool)
+        for name, v in p.items():
+            ok &= np.isfinite(v) & self._domain(name, v)
+        return ok
+
+    def _domain(self, name: str, v: np.ndarray) -> np.ndarray:
+        return v > 0
+
+    def slip_rigidity(self, chi_a, **params) -> np.ndarray:
+        """First-harmonic complex secant rigidity of the slip part at curvature amplitude ``chi_a``.
+
+        Parameters
+        ----------
+        chi_a : array_like
+            Curvature amplitude [1/m], >= 0.
+        **params : float or array_like
+            The law's parameters (:attr:`parameters`), broadcast against ``chi_a``.
+
+        Returns
+        -------
+        ndarray of complex
+            ``EJ_slip*`` [N m^2], broadcast shape; ``delta_EJ`` (real) at ``chi_a = 0``; NaN where
+            the parameters are outside the law's domain.
+        """
+        p = self._arrays(params)
+        chi = np.asarray(chi_a, dtype=float)
+        ok = self.valid(**params)
+        out = self._rigidity(np.maximum(chi, 0.0), **{k: np.where(ok, v, 1.0) for k, v in p.items()})
+        return np.where(ok, out, np.nan)
+
+    def energy_per_cycle(self, chi_a, **params) -> np.ndarray:
+        """``W = pi Im(EJ_slip*) chi_a^2``: friction energy per cycle and unit length [J/m]."""
+        return np.pi * self.slip_rigidity(chi_a, **params).imag * np.asarray(chi_a, dtype=float) ** 2
+
+    def _rigidity(self, chi, **p):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:  # pragma: no cover - abstract
+        """Slip moment [N m] on the steady loop ``chi = chi_a cos(theta)``, theta in [0, 2 pi).
+
+        The law's own hysteresis operator, not its describing function: the reference the tests
+        hold :meth:`slip_rigidity` to. Scalar parameters.
+        """
+        raise NotImplementedError
+
+
+def _masing_loop(backbone, chi_a, theta):
+    """Steady loop of a Masing law from its backbone (virgin curve) ``backbone(chi)``, chi >= 0.
+
+    Unloading from ``chi_a`` (theta in [0, pi], chi falling): ``M = B(chi_a) - 2 B((chi_a - chi) / 2)``;
+    loading (theta in (pi, 2 pi)): ``M = -B(chi_a) + 2 B((chi_a + chi) / 2)`` (Masing's doubling rule).
+    Parallel Jenkins elements (Iwan models) obey it exactly.
+    """
+    theta = np.mod(np.asarray(theta, dtype=float), 2 * np.pi)
+    chi = chi_a * np.cos(theta)
+    top = backbone(np.asarray(chi_a, dtype=float))
+    unloading = theta <= np.pi
+    return np.where(unloading, top - 2 * backbone((chi_a - chi) / 2), -top + 2 * backbone((chi_a + chi) / 2))
