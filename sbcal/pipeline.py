@@ -24,15 +24,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from .core._io import write_json
 from .core.errors import InputError
-from .core.progress import progress_bar
-from .core.workers import default_workers, one_blas_thread
+from .core.workers import default_workers, one_blas_thread, run_jobs
 from .data.bench import rows_digest
 from .data.cleaning import DEFAULT_Z_THRESHOLD, quality_table
 from .data.summary import bench_summary
@@ -161,21 +159,6 @@ def executor_for(scheduler: str | None = None):
         client.close()
 
 
-def _map(executor, fn, jobs, label):
-    """``fn`` over ``jobs`` (in ``executor`` or here), results in job order, a progress bar over jobs."""
-    out = []
-    with progress_bar(label, total=len(jobs), unit="job") as bar:
-        if executor is None:
-            for j in jobs:
-                out.append(fn(j))
-                bar.update(1)
-        else:
-            for r in executor.map(fn, jobs):
-                out.append(r)
-                bar.update(1)
-    return out
-
-
 # --- stages --------------------------------------------------------------------------------
 
 def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict, str]:
@@ -225,14 +208,40 @@ def sample_inputs(bench, damper: Damper, test: str, settings: Settings) -> dict:
             "seed": settings.seed, "sbcal": _version()}
 
 
-def _sample_job(job):
-    damper, bench, test, store, settings, inputs, command = job
+@dataclass(frozen=True)
+class SampleJob:
+    """One test's posterior, as a worker runs it (picklable: it travels to a process or a cluster)."""
+
+    damper: Damper
+    bench: object
+    test: str
+    store: str
+    settings: Settings
+    inputs: dict
+    command: str = ""
+
+
+@dataclass(frozen=True)
+class DiagnoseJob:
+    """One damper's diagnosis, as a worker runs it."""
+
+    damper: Damper
+    bench: object
+    store: str
+    settings: Settings
+    inputs: dict
+    command: str = ""
+    progress: bool = False
+
+
+def _sample_job(job: SampleJob):
     from .inference.calibrate import calibrate_test
 
+    s = job.settings
     with one_blas_thread():
-        return calibrate_test(damper, bench, test, paramset=settings.paramset, seed=settings.seed, out=store,
-                              config=replace(settings.sampler, workers=1), prior_path=settings.priors,
-                              z_threshold=settings.z_threshold, progress=False, command=command, inputs=inputs)
+        return calibrate_test(job.damper, job.bench, job.test, paramset=s.paramset, seed=s.seed, out=job.store,
+                              config=replace(s.sampler, workers=1), prior_path=s.priors, z_threshold=s.z_threshold,
+                              progress=False, command=job.command, inputs=job.inputs)
 
 
 def sample_tests(bench, work, store, settings: Settings, *, executor=None, command: str = "", reuse: bool = True,
@@ -252,16 +261,12 @@ def sample_tests(bench, work, store, settings: Settings, *, executor=None, comma
         if reuse and not why:
             out[damper.name, t] = (stored, "reused")
         else:
-            jobs.append((damper, bench, t, store, settings, inputs, command))
+            jobs.append(SampleJob(damper, bench, t, store, settings, inputs, command))
             out[damper.name, t] = (None, f"redone ({_why(why)})" if reuse else "sampled")
     label = f"sampling {len(jobs)} test(s)" if progress and jobs else None
-    if executor is None and settings.workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=settings.workers) as pool:
-            done = _map(pool, _sample_job, jobs, label)
-    else:
-        done = _map(executor, _sample_job, jobs, label)
+    done = run_jobs(_sample_job, jobs, workers=settings.workers, executor=executor, label=label)
     for job, summary in zip(jobs, done):
-        key = (job[0].name, job[2])
+        key = (job.damper.name, job.test)
         out[key] = (summary, out[key][1])
     return out
 
@@ -275,15 +280,15 @@ def diagnose_inputs(bench, damper: Damper, settings: Settings) -> dict:
             "settings": diag, "seed": settings.seed, "sbcal": _version()}
 
 
-def _diagnose_job(job):
-    bench, damper, store, settings, inputs, command, progress = job
+def _diagnose_job(job: DiagnoseJob):
     from .diagnosis.diagnose import diagnose
 
-    doc = diagnose(damper, bench, seed=settings.seed, config=settings.diagnose, progress=progress,
-                   prior_path=settings.priors, store=store)
-    doc["command"] = command
-    doc["inputs"] = inputs
-    write_json(Path(store) / damper.name / "diagnose.json", doc, indent=1)
+    s = job.settings
+    doc = diagnose(job.damper, job.bench, seed=s.seed, config=s.diagnose, progress=job.progress,
+                   prior_path=s.priors, store=job.store)
+    doc["command"] = job.command
+    doc["inputs"] = job.inputs
+    write_json(Path(job.store) / job.damper.name / "diagnose.json", doc, indent=1)
     return doc
 
 
@@ -303,12 +308,11 @@ def diagnose_dampers(bench, dampers, store, settings: Settings, *, executor=None
             out[damper.name] = (stored, "reused")
         else:
             out[damper.name] = (None, f"redone ({_why(why)})" if reuse else "diagnosed")
-            jobs.append((bench, damper, store, settings, inputs, command, progress and executor is None))
-    if executor is not None:
-        jobs = [(b, d, st, replace(se, diagnose=replace(se.diagnose, workers=1)), i, c, p)
-                for b, d, st, se, i, c, p in jobs]
-    for job, doc in zip(jobs, _map(executor, _diagnose_job, jobs, None)):
-        out[job[1].name] = (doc, out[job[1].name][1])
+            jobs.append(DiagnoseJob(damper, bench, store, settings, inputs, command, progress and executor is None))
+    if executor is not None:  # on a cluster each diagnosis is one job: its fits run in that worker, one at a time
+        jobs = [replace(j, settings=replace(j.settings, diagnose=replace(j.settings.diagnose, workers=1))) for j in jobs]
+    for job, doc in zip(jobs, run_jobs(_diagnose_job, jobs, executor=executor)):
+        out[job.damper.name] = (doc, out[job.damper.name][1])
     return out
 
 

@@ -289,5 +289,5 @@ def test_diagnose_cleans_with_the_pipelines_threshold(tmp_path):
         config = DiagnoseConfig() if z is None else Settings(z_threshold=z).diagnose
         for primary in ("baseline", "strand_slip"):
             for job in _jobs(primary, (), d, bench, ["0.5-0.5", "1-1"], 0, config, None):
-                likes = job[1].likes if isinstance(job[1], JointLikelihood) else [job[1]]
+                likes = job.target.likes if isinstance(job.target, JointLikelihood) else [job.target]
                 assert [lk.y.shape[1] for lk in likes] == [kept] * len(likes), (z, primary)

@@ -125,9 +125,9 @@ def test_sbcal_cable_end_to_end_and_diagnose_makes_the_same_fit(cable_bench, tmp
     d = resolve_damper("damper1")
     bench = load_bench(cable_bench)
     jobs = _jobs("strand_slip", (), d, bench, ["0.2-0.2", "1-1"], 3, replace(DiagnoseConfig(), laws=(LAW,)), None)
-    assert len(jobs) == 1 and jobs[0][0] == ("strand_slip", "dry", LAW)
-    assert jobs[0][2].generate_state(4).tolist() == cable_seed(3, "damper1", "dry", LAW).generate_state(4).tolist()
-    _, res = _fit(jobs[0])
+    assert len(jobs) == 1 and jobs[0].key == ("strand_slip", "dry", LAW)
+    assert jobs[0].stream.generate_state(4).tolist() == cable_seed(3, "damper1", "dry", LAW).generate_state(4).tolist()
+    res = _fit(jobs[0])
     for n, v in res.draws.items():
         np.testing.assert_array_equal(np.asarray(v).ravel(), draws[n])
 

@@ -15,11 +15,12 @@ so it cannot be set from inside a running process.
 from __future__ import annotations
 
 import os
+from concurrent.futures import ProcessPoolExecutor
 
 from threadpoolctl import threadpool_limits
 
 
-__all__ = ["one_blas_thread", "default_workers"]
+__all__ = ["one_blas_thread", "default_workers", "run_jobs"]
 
 
 def default_workers() -> int:
@@ -31,3 +32,34 @@ def default_workers() -> int:
 def one_blas_thread():
     """A context manager: BLAS libraries loaded in this process use one thread inside it."""
     return threadpool_limits(limits=1, user_api="blas")
+
+
+def run_jobs(fn, jobs, *, workers: int = 1, executor=None, label: str | None = None, unit: str = "job") -> list:
+    """``fn`` over ``jobs``, results in job order, a progress bar over jobs: the one process loop of sbcal.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level function of one job (picklable, as the job must be).
+    jobs : list
+    workers : int
+        Local processes (here, in this process, when 1 or when there is a single job).
+    executor : concurrent.futures.Executor, optional
+        A cluster's executor (:func:`sbcal.pipeline.executor_for`); it takes precedence over ``workers``.
+    label, unit : str
+        The progress bar's text and unit (no bar when ``label`` is None).
+    """
+    from .progress import progress_bar
+
+    out = []
+    with progress_bar(label, total=len(jobs), unit=unit) as bar:
+        if executor is None and workers > 1 and len(jobs) > 1:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                for r in pool.map(fn, jobs):
+                    out.append(r)
+                    bar.update(1)
+        else:
+            for r in (executor.map(fn, jobs) if executor is not None else map(fn, jobs)):
+                out.append(r)
+                bar.update(1)
+    return out

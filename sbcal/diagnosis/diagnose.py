@@ -202,7 +202,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
 
     # 1-2. baseline and locate
     jobs = _jobs("baseline", (), damper, bench, tests, seed, config, prior_path)
-    likes = [j[1] for j in jobs]
+    likes = [j.target for j in jobs]
     fits = _run_fits(jobs, config, label("per-test fits"))
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]

@@ -3,14 +3,12 @@ top), one fit job per test or per cable state and law, run in worker processes, 
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.progress import progress_bar
 from ..core.seeds import job_seed
-from ..core.workers import default_workers, one_blas_thread
+from ..core.workers import default_workers, one_blas_thread, run_jobs
 from ..data.cleaning import DEFAULT_Z_THRESHOLD, remove_outlier_runs
 from ..inference.cable_fit import (CableFit, cable_config, cable_likelihood, cable_seed, compare_families,
                                    compared_laws, sample_cable, state_tests)
@@ -109,9 +107,9 @@ def _per_test_prior(primary: str, secondary, damper: Damper, prior_path) -> Prio
 def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) -> list:
     """Fit jobs of one model: one per test, or for strand slip one per cable state and law family.
 
-    A job is ``(key, target, stream, config)``: key ``(model name, test)`` or ``(model name, state,
-    law)``; the stream keyed by what the fit is (a cable fit's is :func:`sbcal.inference.cable_fit.cable_seed`,
-    the same as ``sbcal cable``'s), so no fit's draws depend on which other fits run.
+    A job is a :class:`FitJob`: key ``(model name, test)`` or ``(model name, state, law)``; the stream
+    keyed by what the fit is (a cable fit's is :func:`sbcal.inference.cable_fit.cable_seed`, the same as
+    ``sbcal cable``'s), so no fit's draws depend on which other fits run.
     """
     name = _name(primary, secondary)
     jobs = []
@@ -128,19 +126,38 @@ def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) ->
             data = remove_outlier_runs(bench.test(damper.name, t), config.z_threshold).data
             jobs.append(((name, t), likelihood_for(damper, data, prior, model=model),
                          job_seed(seed, "diagnose", damper.name, name, t)))
-    return [(key, target, s, config) for key, target, s in jobs]
+    return [FitJob(key, target, s, config) for key, target, s in jobs]
 
 
 # --- fits ----------------------------------------------------------------------------------------
 
-def _fit(job):
-    """One posterior through the engine (a test's, or a cable state's: :func:`sbcal.inference.cable_fit.sample_cable`).
-    Module-level: picklable."""
-    key, like, ss, config = job
+@dataclass(frozen=True)
+class FitJob:
+    """One fit of the diagnosis (picklable: it travels to a worker process).
+
+    Attributes
+    ----------
+    key : tuple
+        ``(model name, test)``, or ``(model name, cable state, law)`` for a cable fit.
+    target : TestLikelihood or JointLikelihood
+    stream : numpy.random.SeedSequence
+        The fit's own stream, keyed by what it is.
+    config : DiagnoseConfig
+    """
+
+    key: tuple
+    target: object
+    stream: object
+    config: DiagnoseConfig
+
+
+def _fit(job: FitJob):
+    """One posterior through the engine (a test's, or a cable state's: :func:`sbcal.inference.cable_fit.sample_cable`)."""
+    like, config = job.target, job.config
     with one_blas_thread():
         if isinstance(like, JointLikelihood):
-            return key, sample_cable(like, seed=ss, config=config.sampler(like.prior.ndim, True))
-        return key, sample(like, seed=ss, config=config.sampler(like.prior.ndim))
+            return sample_cable(like, seed=job.stream, config=config.sampler(like.prior.ndim, True))
+        return sample(like, seed=job.stream, config=config.sampler(like.prior.ndim))
 
 
 def _posterior(like, res) -> dict:
@@ -163,21 +180,9 @@ def _posterior(like, res) -> dict:
 
 def _run_fits(jobs, config, label) -> dict:
     """Run fits, ``config.workers`` at a time (the costly cable fits first); ``{key: fit}``."""
-    jobs = sorted(jobs, key=lambda j: not isinstance(j[1], JointLikelihood))
-    likes = {j[0]: j[1] for j in jobs}
-    out = {}
-    with progress_bar(label, total=len(jobs), unit="fit") as bar:
-        if config.workers > 1 and len(jobs) > 1:
-            with ProcessPoolExecutor(max_workers=config.workers) as pool:
-                for key, res in pool.map(_fit, jobs):
-                    out[key] = _posterior(likes[key], res)
-                    bar.update(1)
-        else:
-            for job in jobs:
-                key, res = _fit(job)
-                out[key] = _posterior(likes[key], res)
-                bar.update(1)
-    return out
+    jobs = sorted(jobs, key=lambda j: not isinstance(j.target, JointLikelihood))
+    done = run_jobs(_fit, jobs, workers=config.workers, label=label, unit="fit")
+    return {job.key: _posterior(job.target, res) for job, res in zip(jobs, done)}
 
 
 def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:

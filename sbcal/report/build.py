@@ -11,7 +11,6 @@ across tests the amplitude map. Missing pieces (a test not sampled yet) are show
 from __future__ import annotations
 
 import datetime as _dt
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import numpy as np
 from ..core._io import atomic_path
 from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
+from ..core.workers import run_jobs
 from ..inference.sampler import POLICY
 
 
@@ -377,10 +377,7 @@ def _job(job):
 
 def _draw(jobs, workers: int):
     """``(key, result)`` of every drawing job, in ``workers`` processes (here when 1)."""
-    if workers <= 1 or len(jobs) <= 1:
-        return [_job(j) for j in jobs]
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(_job, jobs))
+    return run_jobs(_job, jobs, workers=workers)
 
 
 def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1", command: str = "",
