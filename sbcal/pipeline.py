@@ -1,12 +1,9 @@
 """The whole job, one way: clean -> sample -> diagnose -> map -> report, through the run store.
 
-Each stage writes its result to the run store and later stages read only stored results::
-
-    <runs>/<damper>/data.json                      clean: per-test cleaning and quality (sbcal data)
-    <runs>/<damper>/<test>/<paramset>/posterior.nc + summary.json     sample
-    <runs>/<damper>/diagnose.json                  diagnose
-    <runs>/<damper>/map.json + map.nc              map (the laws' summaries and posterior draws)
-    <report>/index.html                            report (renders the store, recomputes nothing)
+Each stage writes its result to the run store (where: :mod:`sbcal.inference.store`) and later stages
+read stored results: clean -> ``data.json``, sample -> each test's posterior, diagnose ->
+``diagnose.json`` (and the cable runs), map -> ``map.json`` + ``map.nc``, report -> ``<report>/index.html``
+(it renders the store and recomputes nothing).
 
 **Fresh or redone.** Every stored result carries ``inputs``: digests of everything it was made
 from — the bench rows it used (the test's rows for a posterior, the damper's for its other stages),
@@ -34,6 +31,7 @@ from .core.workers import default_workers, one_blas_thread, run_jobs
 from .data.bench import rows_digest
 from .data.cleaning import DEFAULT_Z_THRESHOLD, quality_table
 from .data.summary import bench_summary
+from .inference.store import data_path, diagnose_path
 from .model.damper import Damper
 
 
@@ -166,7 +164,7 @@ def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict
 
     Returns ``(doc, status)``.
     """
-    path = Path(store) / damper.name / "data.json"
+    path = data_path(store, damper.name)
     inputs = {"bench_rows": rows_digest(bench, damper.name), "settings": {"z_threshold": settings.z_threshold},
               "sbcal": _version()}
     stored = _read_json(path)
@@ -251,7 +249,8 @@ def sample_tests(bench, work, store, settings: Settings, *, executor=None, comma
     Jobs run in ``executor`` (a cluster), else in ``settings.workers`` local processes. Returns
     ``{(damper name, test): (summary, status)}``.
     """
-    from .inference.runs import read_summary, run_dir
+    from .inference.runs import read_summary
+    from .inference.store import run_dir
 
     out, jobs = {}, []
     for damper, t in work:
@@ -288,7 +287,7 @@ def _diagnose_job(job: DiagnoseJob):
                    prior_path=s.priors, store=job.store)
     doc["command"] = job.command
     doc["inputs"] = job.inputs
-    write_json(Path(job.store) / job.damper.name / "diagnose.json", doc, indent=1)
+    write_json(diagnose_path(job.store, job.damper.name), doc, indent=1)
     return doc
 
 
@@ -302,7 +301,7 @@ def diagnose_dampers(bench, dampers, store, settings: Settings, *, executor=None
     out, jobs = {}, []
     for damper in dampers:
         inputs = diagnose_inputs(bench, damper, settings)
-        stored = _read_json(Path(store) / damper.name / "diagnose.json")
+        stored = _read_json(diagnose_path(store, damper.name))
         why = changed(stored, inputs)
         if reuse and not why:
             out[damper.name] = (stored, "reused")

@@ -169,7 +169,7 @@ def add_map(sub):
 
 
 def cmd_map(args) -> int:
-    from pathlib import Path
+    pass
 
     from ..core._io import write_json
     from ..inference.amplitude import amplitude_map, map_from_store, points_from_table, stored_maps
@@ -179,11 +179,9 @@ def cmd_map(args) -> int:
         docs = {"table": doc}
         key = "table"
     else:
-        root = Path(args.runs)
-        from ..design.span_study import SPAN_STORE
+        from ..inference.store import dampers
 
-        names = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != SPAN_STORE) if root.is_dir() else []
-        for name in names:  # every damper's map is a stage of the run store (map.json + map.nc)
+        for name in dampers(args.runs):  # every damper's map is a stage of the run store (map.json + map.nc)
             map_from_store(args.runs, name, args.params, seed=args.seed, include_oiled=args.include_oiled)
         docs = stored_maps(args.runs)
         if args.damper not in docs:

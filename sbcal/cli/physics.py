@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..core.errors import InputError
+from ..inference.store import cable_dir, diagnose_path
 from .options import bench_for, bench_options, scale_options, settings_from, workers_option
 
 
@@ -34,7 +35,6 @@ def add_diagnose(sub):
 
 def cmd_diagnose(args) -> int:
     from dataclasses import replace
-    from pathlib import Path
 
     from ..core._io import write_json
     from ..diagnosis.diagnose import diagnose
@@ -58,7 +58,7 @@ def cmd_diagnose(args) -> int:
         result["inputs"] = diagnose_inputs(bench, damper, settings)
     if args.json:
         write_json(args.json, result, indent=1)
-    stored = Path(args.runs) / damper.name / "diagnose.json"
+    stored = diagnose_path(args.runs, damper.name)
     write_json(stored, result, indent=1)
     if args.curves:
         from ..data.bench import write_bench
@@ -123,7 +123,6 @@ def add_cable(sub):
 
 def cmd_cable(args) -> int:
     from dataclasses import asdict
-    from pathlib import Path
 
     from ..inference.cable_fit import fit_damper_cable, store_cable
     from ..model.damper import resolve_damper
@@ -139,7 +138,7 @@ def cmd_cable(args) -> int:
                                         workers=args.workers, progress=not args.quiet)
     best = comparison["best"]
     for state, fit in sorted(fits[best].items()):
-        out = Path(args.runs) / damper.name / f"cable-{state}"
+        out = cable_dir(args.runs, damper.name, state)
         s = store_cable(fit, out, meta={"seed": args.seed, "made_by": args.command_line, "damper_values": asdict(damper)},
                         comparison=comparison if len(fits) > 1 else None)
         flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"

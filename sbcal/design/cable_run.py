@@ -11,6 +11,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..data.labels import parse_label
+from ..inference.store import cable_state_of
 from ..model.damper import GEOMETRY, Damper
 
 
@@ -55,7 +56,7 @@ class CableRun:
 
     @property
     def state(self) -> str:
-        return str(self.summary.get("state", self.path.name.removeprefix("cable-")))
+        return str(self.summary.get("state", cable_state_of(self.path)))
 
     @property
     def n_draws(self) -> int:

@@ -10,22 +10,18 @@ import pandas as pd
 
 from ..core._io import atomic_path, write_json
 from ..core.errors import InputError
+from ..inference.store import prediction_dir
 from .predict import Prediction, Resonance
 from .predict_plots import plot_prediction, plot_sweep
 from .sweep import SweepResult, _unjson
 
 
 __all__ = [
-    "prediction_dir", "write_csv", "store_prediction", "read_prediction", "store_sweep", "read_sweep",
+    "write_csv", "store_prediction", "read_prediction", "store_sweep", "read_sweep",
     "stored_predictions",
 ]
 
 # --- the store -------------------------------------------------------------------------------------
-
-def prediction_dir(cable_run, damper: str, state: str) -> Path:
-    """``<runs>/<calibration damper>/predict-<damper>-<state>``: beside the cable run it comes from."""
-    return Path(cable_run).parent / f"predict-{damper}-{state}"
-
 
 def write_csv(result, path) -> None:
     """Write a :class:`Prediction` or :class:`SweepResult` (its ``to_frame()``) as CSV, atomically;

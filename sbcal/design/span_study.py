@@ -12,6 +12,8 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
 from ..data.labels import parse_label
+from ..inference.store import span_dir as store_span_dir
+from ..inference.store import span_dirs
 from ..model.damper import Damper
 from .conductor import Conductor
 from .placement import Placement, optimise_position
@@ -20,7 +22,7 @@ from .vibration import _wind_check
 
 
 __all__ = [
-    "plot_span", "SPAN_STORE", "AMPLITUDE_MARGIN", "SpanStudy", "span_study", "span_dir", "store_span", "read_span",
+    "plot_span", "AMPLITUDE_MARGIN", "SpanStudy", "span_study", "span_dir", "store_span", "read_span",
     "stored_spans",
 ]
 
@@ -83,9 +85,6 @@ def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -
 
 # ---------------------------------------------------------------------------------------------
 # A study (``sbcal span``): a stored damper on a conductor, stored and read back
-
-SPAN_STORE = "span"
-"""The run store's directory of span studies: ``<runs>/span/<label>/`` (:func:`span_dir`)."""
 
 AMPLITUDE_MARGIN = 0.10
 """A damper's clamp amplitude counts as beyond the calibration when it exceeds the largest amplitude
@@ -294,7 +293,7 @@ def span_dir(study: SpanStudy, runs_dir=None) -> Path:
     grandparent: ``runs/damper1/cable-dry`` -> ``runs``), or ``runs`` for a bare span."""
     if runs_dir is None:
         runs_dir = Path(study.cable).parent.parent if study.cable else Path("runs")
-    return Path(runs_dir) / SPAN_STORE / study.label
+    return store_span_dir(runs_dir, study.label)
 
 
 def store_span(study: SpanStudy, directory=None, *, meta: dict | None = None, json_path=None) -> Path:
@@ -337,5 +336,4 @@ def read_span(directory) -> dict:
 
 def stored_spans(runs_dir) -> list:
     """Every span study of a run store: ``[(directory, summary dict)]`` sorted by directory name."""
-    root = Path(runs_dir) / SPAN_STORE
-    return [(d, read_span(d)) for d in sorted(root.iterdir()) if (d / "summary.json").is_file()] if root.is_dir() else []
+    return [(d, read_span(d)) for d in span_dirs(runs_dir)]

@@ -35,6 +35,7 @@ from ..data.bench import rows_digest
 from ..inference.cable_fit import SECONDARY, CableFit, state_tests, store_cable
 from ..inference.runs import versions
 from ..inference.stats import elpd_difference, loo
+from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
 from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits
@@ -363,12 +364,11 @@ def curves_frame(doc: dict):
 
 def _store_cables(damper, fits, store, seed, comparison, tests) -> None:
     """Write the verdict's cable-law posteriors as ``<store>/<damper>/cable-<state>/``."""
-    from pathlib import Path
 
     groups = state_tests(tests)
     for (name, state), f in sorted(fits.items()):
         fit = CableFit(damper=damper.name, state=state, law=f["law"], tests=tuple(groups[state]), effects=(),
                        result=f["result"], like=f["like"], loo=loo(f["log_lik"]))
-        store_cable(fit, Path(store) / damper.name / f"cable-{state}",
+        store_cable(fit, cable_dir(store, damper.name, state),
                     meta={"seed": seed, "made_by": "sbcal diagnose", "damper_values": asdict(damper)},
                     comparison=comparison)

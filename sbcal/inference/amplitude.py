@@ -38,6 +38,7 @@ from .priors import Prior
 from .runs import posterior_draws
 from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
+from .store import damper_dir, dampers, map_path
 
 
 __all__ = ["TestPoint", "LawFit", "fit_law", "amplitude_map", "map_from_store", "stored_maps", "law_curve", "plot_map",
@@ -303,10 +304,10 @@ def map_from_store(runs_dir, damper: str, paramset: str = "theta1", *, seed: int
     from ..core.version import __version__
     from .runs import write_map
 
-    root = Path(runs_dir) / damper
+    root = damper_dir(runs_dir, damper)
     inputs = {"posteriors": _summaries_digest(runs_dir, damper, paramset), "paramset": paramset,
               "settings": {"include_oiled": include_oiled}, "seed": seed, "sbcal": __version__}
-    path = root / "map.json"
+    path = map_path(runs_dir, damper)
     stored = json.loads(path.read_text()) if path.is_file() else None
     why = [k for k in inputs if not stored or stored.get("inputs", {}).get(k) != inputs[k]]
     if reuse and stored is not None and not why:
@@ -337,13 +338,12 @@ def stored_maps(runs_dir) -> dict:
     ``"draws"`` (``{law: {parameter: ndarray}}``, from ``map.nc``) for plots."""
     from .runs import read_map
 
-    root = Path(runs_dir)
     out = {}
-    for d in sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []:
-        path = root / d / "map.json"
+    for d in dampers(runs_dir):
+        path = map_path(runs_dir, d)
         if path.is_file():
             doc = json.loads(path.read_text())
-            doc["draws"] = read_map(root / d)
+            doc["draws"] = read_map(damper_dir(runs_dir, d))
             out[d] = doc
     return out
 
@@ -497,7 +497,8 @@ def joint_from_runs(damper, bench, runs_dir, two_stage: dict, paramset: str = "t
                     progress=None) -> dict:
     """:func:`joint_powerlaw` over the tests of a two-stage map (``two_stage`` = its document),
     started from its fit and the stored per-test posteriors; adds a comparison with the two-stage k, n."""
-    from .runs import read_summary, run_dir
+    from .runs import read_summary
+    from .store import run_dir
 
     tests = [t["test"] for t in two_stage["tests"]]
     start = {"k": two_stage["powerlaw"]["k"][0], "n": two_stage["powerlaw"]["n"][0],

@@ -17,8 +17,9 @@ from ..model.damper import Damper
 from .likelihood import TestLikelihood
 from .point_fit import fit_thesis_cost
 from .priors import load_prior
-from .runs import run_dir, summarize, to_inference_data, versions, write_run
+from .runs import summarize, to_inference_data, versions, write_run
 from .sampler import SamplerConfig, sample
+from .store import point_fit_path, run_dir
 
 
 __all__ = ["likelihood_for", "test_likelihood", "calibrate_test", "point_fit_test"]
@@ -114,6 +115,6 @@ def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
                           generations=generations)
     doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed, "seed_key": seed_key(*key),
            "removed_runs": list(cleaned.removed_runs), "versions": versions(), **fit.as_dict()}
-    path = run_dir(out, damper.name, test, paramset) / "ga.json"
+    path = point_fit_path(out, damper.name, test, paramset)
     write_json(path, doc, indent=2, sort_keys=True)
     return doc

@@ -1,6 +1,6 @@
 """Stored runs: ArviZ netCDF + ``summary.json`` (ArviZ itself is reached through :mod:`sbcal.inference.stats`).
 
-Layout: ``<out>/<damper>/<test>/<paramset>/posterior.nc`` (groups posterior, sample_stats,
+A test's run (where: :mod:`sbcal.inference.store`): ``posterior.nc`` (groups posterior, sample_stats,
 log_likelihood, posterior_predictive, observed_data, constant_data; attrs hold the config as
 JSON, the seed, the convergence verdict and package versions) and ``summary.json`` beside it. Both
 are written atomically; ``summary.json`` is written last, so a directory without it holds no
@@ -24,9 +24,10 @@ import xarray as xr
 from ..core._io import atomic_path, write_json
 from ..core.errors import InputError
 from .stats import arviz_version, inference_data, read_netcdf
+from .store import POSTERIOR, SUMMARY
 
 
-__all__ = ["run_dir", "to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
+__all__ = ["to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
            "posterior_draws", "parameter_summary", "StoredTest", "write_map", "read_map", "write_inference_data"]
 
 SUMMARY_QUANTILES = (0.05, 0.5, 0.95)
@@ -49,11 +50,6 @@ def versions() -> dict:
     return {"sbcal": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "emcee": version("emcee"), "pandas": pandas.__version__,
             "arviz": arviz_version(), "xarray": xr.__version__}
-
-
-def run_dir(out, damper: str, test: str, paramset: str) -> Path:
-    """``<out>/<damper>/<test>/<paramset>``."""
-    return Path(out) / damper / test / paramset
 
 
 def to_inference_data(result, like, *, runs, removed_runs, seed: int, seed_key: str, rng, meta: dict):
@@ -150,15 +146,15 @@ def summarize(idata, result, *, point_fit: dict | None = None) -> dict:
 def write_run(idata, summary: dict, directory) -> Path:
     """Write ``posterior.nc`` then ``summary.json`` into ``directory``, each atomically."""
     d = Path(directory)
-    with atomic_path(d / "posterior.nc", ".nc") as tmp:
+    with atomic_path(d / POSTERIOR, ".nc") as tmp:
         idata.to_netcdf(str(tmp))
-    write_json(d / "summary.json", summary, indent=2, sort_keys=True)
+    write_json(d / SUMMARY, summary, indent=2, sort_keys=True)
     return d
 
 
 def read_summary(directory) -> dict | None:
     """The run's summary, or None when the directory holds no finished run."""
-    p = Path(directory) / "summary.json"
+    p = Path(directory) / SUMMARY
     if not p.exists():
         return None
     try:
@@ -172,7 +168,7 @@ def read_run(directory):
     s = read_summary(directory)
     if s is None:
         raise InputError(f"{directory}: no finished run (summary.json missing)")
-    return read_netcdf(Path(directory) / "posterior.nc"), s
+    return read_netcdf(Path(directory) / POSTERIOR), s
 
 
 class StoredTest(NamedTuple):

@@ -21,6 +21,10 @@ from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
 from ..core.workers import run_jobs
 from ..inference.sampler import POLICY
+from ..inference.store import cable_dirs
+from ..inference.store import data_path as store_data_path
+from ..inference.store import dampers as stored_dampers
+from ..inference.store import diagnose_path
 
 
 __all__ = ["build_report"]
@@ -253,9 +257,8 @@ def _diagnosis(path: Path, figs: Path):
     except (ValueError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a diagnosis written by sbcal diagnose ({e})") from None
     cables = {}
-    for d in sorted(path.parent.glob("cable-*")):
-        if (d / "summary.json").is_file():
-            cables[d.name.removeprefix("cable-")] = read_cable(d)
+    for state, d in cable_dirs(path.parent.parent, path.parent.name):
+        cables[state] = read_cable(d)
     if cables:
         doc["law_figure"] = _law_figure(cables, figs / f"{doc['damper']}_law.png")
         doc["cables"] = {state: s for state, (s, _) in cables.items()}
@@ -341,7 +344,8 @@ def eng(v) -> str:
 
 def _test_item(runs: Path, dname: str, t: str, paramset: str, figs: Path) -> _Test:
     """One test's section: its stored run's figures and parameter table (or what is missing)."""
-    from ..inference.runs import read_run, run_dir
+    from ..inference.runs import read_run
+    from ..inference.store import run_dir
 
     d = run_dir(runs, dname, t, paramset)
     item = _Test(label=t, paramset=paramset)
@@ -416,20 +420,19 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
     dampers = []
-    from ..design.span_study import SPAN_STORE
 
-    names = sorted(p.name for p in runs.iterdir() if p.is_dir() and p.name != SPAN_STORE)
+    names = stored_dampers(runs)
     test_dirs = {d: sorted({p.parent.name for p in (runs / d).glob(f"*/{paramset}")}) for d in names}
     # the figures are drawn in worker processes (what takes the time); one job a test or a damper's extras
     jobs = [(_test_item, ("test", d, t), (runs, d, t, paramset, figs)) for d in names for t in test_dirs[d]]
-    jobs += [(_diagnosis, ("diagnosis", d), (runs / d / "diagnose.json", figs)) for d in names]
+    jobs += [(_diagnosis, ("diagnosis", d), (diagnose_path(runs, d), figs)) for d in names]
     jobs += [(_predictions, ("predictions", d), (runs / d, figs)) for d in names]
     say(f"report: drawing the figures of {len(names)} damper(s)")
     results = dict(_draw(jobs, workers))
     for dname in names:
         say(f"report: {dname}")
         tests_dirs = test_dirs[dname]
-        data_path = runs / dname / "data.json"
+        data_path = store_data_path(runs, dname)
         try:
             data = json.loads(data_path.read_text()) if data_path.is_file() else None
         except ValueError as e:

@@ -1,0 +1,97 @@
+"""The run store's layout: the one module that knows where each stage's result lives.
+
+::
+
+    <runs>/<damper>/data.json                                  clean: per-test cleaning and quality
+    <runs>/<damper>/<test>/<paramset>/posterior.nc, summary.json  a test's posterior (ga.json: the point fit)
+    <runs>/<damper>/diagnose.json                              the diagnosis
+    <runs>/<damper>/map.json, map.nc                           the amplitude map
+    <runs>/<damper>/cable-<state>/posterior.nc, summary.json   a cable state's law
+    <runs>/<damper>/predict-<new>-<state>/                     a new damper from that cable (beside it)
+    <runs>/span/<label>/                                       span studies
+
+Inside a run directory the files are its writer's (:mod:`sbcal.inference.runs`,
+:func:`sbcal.inference.cable_fit.store_cable`, ...); ``summary.json`` is written last, so a directory
+without it holds no finished result.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+__all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "point_fit_path", "data_path", "diagnose_path",
+           "map_path", "cable_dir", "cable_dirs", "cable_state_of", "prediction_dir", "span_dir", "span_dirs"]
+
+SUMMARY = "summary.json"
+POSTERIOR = "posterior.nc"
+_CABLE = "cable-"
+_SPAN = "span"
+
+
+def dampers(runs) -> list[str]:
+    """The dampers a store holds results of (its directories but the span studies'), sorted."""
+    root = Path(runs)
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != _SPAN) if root.is_dir() else []
+
+
+def damper_dir(runs, damper: str) -> Path:
+    """``<runs>/<damper>``."""
+    return Path(runs) / damper
+
+
+def run_dir(runs, damper: str, test: str, paramset: str) -> Path:
+    """``<runs>/<damper>/<test>/<paramset>``: a test's posterior."""
+    return damper_dir(runs, damper) / test / paramset
+
+
+def point_fit_path(runs, damper: str, test: str, paramset: str) -> Path:
+    """``.../<test>/<paramset>/ga.json``: the thesis's point fit (``sbcal sample --method point``)."""
+    return run_dir(runs, damper, test, paramset) / "ga.json"
+
+
+def data_path(runs, damper: str) -> Path:
+    """``<runs>/<damper>/data.json``: the clean stage's result."""
+    return damper_dir(runs, damper) / "data.json"
+
+
+def diagnose_path(runs, damper: str) -> Path:
+    """``<runs>/<damper>/diagnose.json``."""
+    return damper_dir(runs, damper) / "diagnose.json"
+
+
+def map_path(runs, damper: str) -> Path:
+    """``<runs>/<damper>/map.json`` (its draws, ``map.nc``, beside it)."""
+    return damper_dir(runs, damper) / "map.json"
+
+
+def cable_dir(runs, damper: str, state: str) -> Path:
+    """``<runs>/<damper>/cable-<state>``."""
+    return damper_dir(runs, damper) / f"{_CABLE}{state}"
+
+
+def cable_dirs(runs, damper: str) -> list[tuple[str, Path]]:
+    """``[(state, directory)]`` of a damper's finished cable runs, by state."""
+    root = damper_dir(runs, damper)
+    return [(cable_state_of(d), d) for d in sorted(root.glob(f"{_CABLE}*")) if (d / SUMMARY).is_file()]
+
+
+def cable_state_of(directory) -> str:
+    """The cable state a cable run's directory is named for (``cable-dry`` -> ``dry``)."""
+    return Path(directory).name.removeprefix(_CABLE)
+
+
+def prediction_dir(cable_run, damper: str, state: str) -> Path:
+    """``<runs>/<calibration damper>/predict-<damper>-<state>``: beside the cable run it comes from."""
+    return Path(cable_run).parent / f"predict-{damper}-{state}"
+
+
+def span_dir(runs, label: str) -> Path:
+    """``<runs>/span/<label>``."""
+    return Path(runs) / _SPAN / label
+
+
+def span_dirs(runs) -> list[Path]:
+    """The finished span studies of a store."""
+    root = Path(runs) / _SPAN
+    return [d for d in sorted(root.iterdir()) if (d / SUMMARY).is_file()] if root.is_dir() else []
