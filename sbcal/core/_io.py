@@ -14,7 +14,7 @@ from pathlib import Path
 from .errors import InputError
 
 
-__all__ = ["read_toml", "atomic_path", "write_json", "bundled_names", "resolve_bundled"]
+__all__ = ["read_toml", "name_and_description", "atomic_path", "write_json", "bundled_names", "resolve_bundled"]
 
 
 def read_toml(path) -> dict:
@@ -33,6 +33,20 @@ def read_toml(path) -> dict:
         raise InputError(f"{p}: not UTF-8 text (byte {e.start})") from None
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"{p}: invalid TOML: {e}") from None
+
+
+def name_and_description(doc: dict, path: str) -> tuple[str, str]:
+    """The ``name`` (required, a non-empty string) and ``description`` (default "") of a parsed
+    description file; a missing or malformed one raises :class:`InputError` naming ``path`` and the key."""
+    name = doc.get("name")
+    if name is None:
+        raise InputError(f"{path}: key 'name': missing")
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{path}: key 'name': expected a non-empty string, got {name!r}")
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise InputError(f"{path}: key 'description': expected a string, got {type(description).__name__}")
+    return name, description
 
 
 @contextmanager

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core._io import bundled_names, read_toml, resolve_bundled
+from ..core._io import bundled_names, name_and_description, read_toml, resolve_bundled
 from ..core.errors import InputError
 from ..model.damper import _number
 
@@ -153,14 +153,7 @@ def _choice(section: dict, path: str, key: str, full: str, choices, default: str
 
 def parse_conductor(doc: dict, path: str = "<conductor>") -> Conductor:
     """Validate a parsed TOML document and build a :class:`Conductor` (see :func:`load_conductor`)."""
-    name = doc.get("name")
-    if name is None:
-        raise InputError(f"{path}: key 'name': missing")
-    if not isinstance(name, str) or not name.strip():
-        raise InputError(f"{path}: key 'name': expected a non-empty string, got {name!r}")
-    description = doc.get("description", "")
-    if not isinstance(description, str):
-        raise InputError(f"{path}: key 'description': expected a string, got {type(description).__name__}")
+    name, description = name_and_description(doc, path)
 
     v = {k: _get(doc, path, k, k, "pos") for k in
          ("diameter_m", "mass_kg_per_m", "rts_n", "ej_min_nm2", "span_length_m")}

@@ -290,13 +290,9 @@ class BoucWenLaw(HysteresisLaw):
         _DELTA_EJ,
         LawParameter("chi_slip", "1/m", "Bouc-Wen curvature: the slip moment saturates at delta_EJ chi_slip"),
         LawParameter("sharpness", "1", f"Bouc-Wen exponent n in [{_BW_SHARPNESS[0]}, {_BW_SHARPNESS[1]}]: "
-                     "sharpness of the stick-slip knee; micro-slip W ~ chi_a^(n+2)"),
+                     "sharpness of the stick-slip knee; micro-slip W ~ chi_a^(n+2)",
+                     low=_BW_SHARPNESS[0], high=_BW_SHARPNESS[1], include_low=True, include_high=True),
     )
-
-    def _domain(self, name, v):
-        if name == "sharpness":
-            return (v >= _BW_SHARPNESS[0]) & (v <= _BW_SHARPNESS[1])
-        return v > 0
 
     def _rigidity(self, chi, *, delta_EJ, chi_slip, sharpness):
         return delta_EJ * _bouc_wen_rigidity(chi / chi_slip, sharpness)

@@ -38,8 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import InputError
-from .cable_sections import (_TINY, _Arms, _Compliance, _compliance_table, _gauss, _linear_compliance, _lookup,
-                             _widely_solve, _Work)
+from .cable_sections import (_TINY, _Arms, _Compliance, _compliance_table, _gauss, _grid, _linear_compliance,
+                             _lookup, _widely_solve, _Work, segments_from_frequencies)
 from .damper import GEOMETRY, Damper
 from .hysteresis import HysteresisLaw
 
@@ -53,15 +53,6 @@ _BASE = ("EJ_min", "beta_material", "rocking_rad_per_m")
 _STEP_CAP = 0.5  # fast model: a Newton step is at most this fraction of |P|
 _START_STEPS = 6  # fast model: relaxed steps of the one-compliance start
 _START_RELAX = 0.3
-def segments_from_frequencies(freq_hz) -> np.ndarray:
-    """Test index per line, a new test starting wherever the frequency does not increase.
-
-    Returns
-    -------
-    ndarray of int, shape (n_freq,)
-    """
-    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
-    return np.concatenate([[0], np.cumsum(np.diff(f) <= 0)]).astype(int)
 
 
 def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
@@ -85,26 +76,48 @@ def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
     return out, n_sets
 
 
-def _grid(freq_hz, amplitude_mm_pp, segments, per_set=False):
-    """Validated frequencies [Hz], amplitudes [mm p-p] and test segments, each shape (n_freq,)
-    (``per_set``: amplitudes may also be (n_sets or 1, n_freq), returned 2-D then)."""
-    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
-    if f.ndim != 1 or not np.all(np.isfinite(f) & (f > 0)):
-        raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
-    amp = np.asarray(amplitude_mm_pp, dtype=float)
-    if per_set and amp.ndim == 2 and amp.shape[1] == f.size:
-        pass  # one amplitude per (set, line)
-    elif amp.ndim > 1 or amp.size not in (1, f.size):
-        shapes = f"({f.size},)" + (f" or (n_sets, {f.size})" if per_set else "")
-        raise InputError(f"amplitude_mm_pp: expected a scalar or shape {shapes}, got shape {amp.shape}")
-    else:
-        amp = np.broadcast_to(amp.reshape(-1), f.shape)
-    if not np.all(np.isfinite(amp) & (amp > 0)):
-        raise InputError("amplitude_mm_pp: expected finite amplitudes > 0 [mm p-p]")
-    seg = segments_from_frequencies(f) if segments is None else np.asarray(segments)
-    if seg.shape != f.shape:
-        raise InputError(f"segments: expected shape {f.shape}, got {seg.shape}")
-    return f, amp, seg
+@dataclass(frozen=True)
+class _CableBase:
+    """What both cable models share: the law, the parameters they accept (the table of
+    :class:`CableModel`) and their checks, and the clamp's inertia."""
+
+    law: HysteresisLaw | None = None
+
+    @property
+    def parameter_names(self) -> tuple:
+        """Every parameter name :meth:`state` accepts."""
+        return _BASE[:2] + self._law_names + _BASE[2:] + GEOMETRY
+
+    @property
+    def _law_names(self) -> tuple:
+        return self.law.parameter_names if self.law is not None else ()
+
+    def _parameters(self, damper: Damper, params: dict):
+        """The parameters as :func:`_resolve` returns them, n_sets, and the law's domain per set
+        (shape (n_sets or 1,); True for the linear cable)."""
+        names = self._law_names
+        p, n_sets = _resolve(self.parameter_names, _BASE[:2] + names, damper, params)
+        in_law = self.law.valid(**{k: p[k] for k in names}) if self.law is not None else True
+        return p, n_sets, in_law
+
+    @staticmethod
+    def _valid_subset(p: dict, n_sets: int, valid):
+        """Indices of the ``valid`` sets and their parameters (the per-set ones cut to them)."""
+        keep = np.flatnonzero(valid)
+        return keep, {k: (v[keep] if v.size == n_sets and n_sets > 1 else v) for k, v in p.items()}
+
+    @staticmethod
+    def _scatter(out: dict, keep, state) -> int:
+        """Rows ``keep`` of the NaN fields ``out`` from ``state``, solved for those sets; its iterations."""
+        for k in out:
+            out[k][keep] = getattr(state, k)
+        return state.iterations
+
+    @staticmethod
+    def _clamp_inertia(p: dict, omega) -> np.ndarray:
+        """The clamp's own inertia in ``f_uu`` [N/m], shape (n_sets or 1, n_freq) (with its rocking)."""
+        r = p["rocking_rad_per_m"][:, None]
+        return -(omega**2)[None, :] * p["mc"][:, None] * (1 + p["ac"][:, None] * r)
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,7 +164,7 @@ class CableState:
 
 
 @dataclass(frozen=True)
-class CableModel:
+class CableModel(_CableBase):
     """The strand-slip cable on statically determinate arms: ``f_uu`` and the steady state, fast.
 
     Parameters (keyword arguments of :meth:`state`; each a scalar or shape (n_sets,)):
@@ -189,7 +202,6 @@ class CableModel:
         Two solutions of one line are distinct when their loads differ by more than this (relative).
     """
 
-    law: HysteresisLaw | None = None
     sections: int = DEFAULT_SECTIONS
     table_points: int = 96
     table_decades: float = 3.0
@@ -208,12 +220,6 @@ class CableModel:
         eta, w = _gauss(int(self.sections))
         powers = eta[None, :] ** np.arange(4, -1, -1)[:, None]  # rows eta^4 .. eta^0
         object.__setattr__(self, "_rule", (eta, np.ascontiguousarray(powers * w[None, :])))
-
-    @property
-    def parameter_names(self) -> tuple:
-        """Every parameter name :meth:`state` accepts."""
-        law = self.law.parameter_names if self.law is not None else ()
-        return _BASE[:2] + law + _BASE[2:] + GEOMETRY
 
     # --- set-up -------------------------------------------------------------------------------
 
@@ -448,17 +454,14 @@ class CableModel:
         return self._run(damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full=False)
 
     def _run(self, damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full):
-        law_names = self.law.parameter_names if self.law is not None else ()
-        p, n_sets = _resolve(self.parameter_names, _BASE[:2] + law_names, damper, params)
+        p, n_sets, in_law = self._parameters(damper, params)
         f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments, per_set=True)
         if amp.ndim == 2 and amp.shape[0] > 1:  # one amplitude per (set, line): the rows are sets
             if n_sets not in (1, amp.shape[0]):
                 raise InputError(f"amplitude_mm_pp: {amp.shape[0]} rows (sets) where the parameters have {n_sets}")
             n_sets = amp.shape[0]
         valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
-        if self.law is not None:
-            valid = valid & self.law.valid(**{k: p[k] for k in law_names})
-        valid = np.broadcast_to(valid, (n_sets,))
+        valid = np.broadcast_to(valid & in_law, (n_sets,))
         if valid.all():
             table = self._table(p, n_sets)
             valid = table.monotone
@@ -477,14 +480,12 @@ class CableModel:
             return self._f_uu(arms, sol[0], p, n_sets, omega, x0)
         return self._assemble(table, arms, sol, fold, iterations, p, n_sets, omega, x0)
 
-    @staticmethod
-    def _f_uu(arms, p_load, p, n_sets, omega, x0):
+    def _f_uu(self, arms, p_load, p, n_sets, omega, x0):
         """``f_uu`` (n_sets, n_freq) from the loads: both arms' vertical clamp forces + the clamp's inertia."""
         fa, fb, fc = arms.force
         force = (fa * p_load[0] + fb * p_load[1] + fc).reshape(n_sets, omega.size, 2).sum(axis=-1)
-        r = p["rocking_rad_per_m"][:, None]
-        body = -(omega**2)[None, :] * p["mc"][:, None] * (1 + p["ac"][:, None] * r)
-        return np.broadcast_to(force / x0.reshape(-1, omega.size) + body, (n_sets, omega.size)).copy()
+        return np.broadcast_to(force / x0.reshape(-1, omega.size) + self._clamp_inertia(p, omega),
+                               (n_sets, omega.size)).copy()
 
     def _assemble(self, table, arms, sol, fold, iterations, p, n_sets, omega, x0) -> CableState:
         (p0, p1), step, _ = sol
@@ -514,9 +515,8 @@ class CableModel:
 
     def _subset(self, damper, f, amp, seg, continuation, p, n_sets, valid, full):
         """Solve the valid sets only; the others get NaN (outside the law's domain)."""
-        keep = np.flatnonzero(valid)
+        keep, sub = self._valid_subset(p, n_sets, valid)
         nf, q = f.size, int(self.sections)
-        sub = {k: (v[keep] if v.size == n_sets and n_sets > 1 else v) for k, v in p.items()}
         if amp.ndim == 2 and amp.shape[0] == n_sets > 1:
             amp = amp[keep]
         if not full:
@@ -530,10 +530,7 @@ class CableModel:
                    fold=np.zeros((n_sets, nf), dtype=bool), residual=np.full((n_sets, nf), np.inf))
         iterations = 0
         if keep.size:
-            st = self._run(damper, f, amp, seg, continuation, sub, full=True)
-            for k in out:
-                out[k][keep] = getattr(st, k)
-            iterations = st.iterations
+            iterations = self._scatter(out, keep, self._run(damper, f, amp, seg, continuation, sub, full=True))
         return CableState(**out, iterations=iterations, sections=1.0 - self._rule[0])
 
     def _continuation(self, table, arms, sol, seg, n_sets, nf):

@@ -9,10 +9,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.errors import InputError
-from .cable import _BASE, _grid, _resolve
-from .cable_sections import _FD_LOG_STEP, _TINY
-from .damper import GEOMETRY, Damper
-from .hysteresis import HysteresisLaw
+from .cable import _CableBase
+from .cable_sections import _FD_LOG_STEP, _TINY, _grid
+from .damper import Damper
 
 
 __all__ = ["DEFAULT_N_ELEMENTS", "ElementCableState", "ElementCableModel"]
@@ -29,8 +28,8 @@ class ElementCableState:
 
     Attributes
     ----------
-    f_uu : ndarray of complex, shape (n_sets, n_freq)
-        Dynamic stiffness [N/m] (with base rocking: the measured ``f_uu + r f_uphi``).
+    f_uu, fold
+        As :class:`sbcal.model.cable.CableState` (the element model always follows the sweep).
     curvature : ndarray, shape (n_sets, n_freq, 2, N)
         Element curvature amplitudes [1/m] (rms over each element), arm 1 (mass 1 - clamp) then
         arm 2 (clamp - mass 2), elements numbered from the clamp outward.
@@ -38,8 +37,6 @@ class ElementCableState:
         Element secant rigidity ``EJ*_e`` [N m^2].
     converged : ndarray of bool, shape (n_sets, n_freq)
         The fixed point met the tolerance on both arms.
-    fold : ndarray of bool, shape (n_sets, n_freq)
-        Two steady states were found at this line (the sweep's branch is the one returned).
     residual : ndarray, shape (n_sets, n_freq)
         ``max |ln T(chi) - ln chi|`` over arms and elements at the returned state.
     iterations : int
@@ -213,20 +210,10 @@ def _solve_small(a, b):
 
 
 @dataclass(frozen=True)
-class ElementCableModel:
+class ElementCableModel(_CableBase):
     """The distributed strand-slip cable: ``f_uu`` and its steady state for parameter sets.
 
-    Parameters (keyword arguments of :meth:`state`; each a scalar or shape (n_sets,)):
-
-    ===================  ======  =============================================================
-    name                 unit    meaning
-    ===================  ======  =============================================================
-    EJ_min               N m^2   rigidity of the fully slipped strand
-    beta_material        1       material loss factor of the strand (on ``EJ_min``)
-    the law's            ...     :attr:`law` ``.parameters`` (e.g. ``delta_EJ``, ``chi_dahl``)
-    rocking_rad_per_m    rad/m   base rocking ``phic = r xc`` (default 0)
-    m1 .. mu             SI      geometry overrides as :mod:`sbcal.model.fem` accepts them
-    ===================  ======  =============================================================
+    Parameters (keyword arguments of :meth:`state`): those of :class:`sbcal.model.cable.CableModel`.
 
     Attributes
     ----------
@@ -245,7 +232,6 @@ class ElementCableModel:
         Two solutions of one line are distinct when their ``ln chi`` differ by more than this.
     """
 
-    law: HysteresisLaw | None = None
     n_elements: int = DEFAULT_N_ELEMENTS
     grading: float = 1.0
     max_iter: int = 20
@@ -262,12 +248,6 @@ class ElementCableModel:
         ratio = self.grading ** (1.0 / (n - 1)) if n > 1 else 1.0
         lengths = ratio ** np.arange(n)
         object.__setattr__(self, "_mesh", np.concatenate([[0.0], np.cumsum(lengths) / lengths.sum()]))
-
-    @property
-    def parameter_names(self) -> tuple:
-        """Every parameter name :meth:`state` accepts."""
-        law = self.law.parameter_names if self.law is not None else ()
-        return _BASE[:2] + law + _BASE[2:] + GEOMETRY
 
     # --- set-up -------------------------------------------------------------------------------
 
@@ -392,20 +372,17 @@ class ElementCableModel:
 
         Parameters
         ----------
-        damper : Damper
-            Nominal geometry (every geometry parameter not given).
-        freq_hz : array_like, shape (n_freq,)
-            Frequency lines [Hz], increasing within each test.
+        damper, freq_hz
+            As :meth:`sbcal.model.cable.CableModel.state` (the frequencies increasing within each test).
         amplitude_mm_pp : float or array_like, shape (n_freq,)
             Commanded base amplitude per line [mm peak-to-peak].
         segments : array_like of int, shape (n_freq,), optional
-            Test index per line (the sweep restarts at each test's first line); default: a new test
-            wherever the frequency does not increase (:func:`segments_from_frequencies`).
+            As :meth:`sbcal.model.cable.CableModel.state` (the sweep restarts at each test's first line).
         linear_rigidity : array_like of complex, shape (n_sets or 1, n_freq or 1, 2), optional
             ``EJ_min (1 + i beta_material)`` per set, line and arm [N m^2], replacing ``EJ_min`` and
             ``beta_material`` (the virtual bench's asymmetric, viscous or frequency-dependent cable).
         **params : float or array_like, shape (n_sets,)
-            See the class docstring.
+            See :class:`sbcal.model.cable.CableModel`.
 
         Returns
         -------
@@ -413,11 +390,8 @@ class ElementCableModel:
         """
         if linear_rigidity is not None:
             params = dict(params, EJ_min=1.0, beta_material=0.0)  # placeholders, replaced below
-        law_names = self.law.parameter_names if self.law is not None else ()
-        p, n_sets = _resolve(self.parameter_names, _BASE[:2] + law_names, damper, params)
-        valid = np.broadcast_to((p["EJ_min"] > 0) & (p["beta_material"] >= 0), (n_sets,))
-        if self.law is not None:
-            valid = valid & np.broadcast_to(self.law.valid(**{k: p[k] for k in self.law.parameter_names}), (n_sets,))
+        p, n_sets, in_law = self._parameters(damper, params)
+        valid = np.broadcast_to((p["EJ_min"] > 0) & (p["beta_material"] >= 0) & in_law, (n_sets,))
         if linear_rigidity is not None:
             lin = np.asarray(linear_rigidity, dtype=complex)
             if lin.ndim != 3 or lin.shape[2] != 2:
@@ -450,10 +424,7 @@ class ElementCableModel:
         def per_line(v, tail=()):
             return v.reshape(*tail, n_sets, nf, 2)
 
-        fx = per_line(force).sum(axis=-1)
-        r = p["rocking_rad_per_m"][:, None]
-        body = -(omega**2)[None, :] * p["mc"][:, None] * (1 + p["ac"][:, None] * r)
-        f_uu = fx / x0[None, :] + body
+        f_uu = per_line(force).sum(axis=-1) / x0[None, :] + self._clamp_inertia(p, omega)
         curv = np.moveaxis(per_line(z, (n,)), 0, -1)
         rig = np.moveaxis(per_line(sigma, (n,)), 0, -1)
         res = per_line(resid).max(axis=-1)
@@ -463,7 +434,7 @@ class ElementCableModel:
 
     def _with_invalid(self, damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid):
         """Solve the valid sets only; the others get NaN (outside the law's domain)."""
-        keep = np.flatnonzero(valid)
+        keep, sub = self._valid_subset(p, n_sets, valid)
         nf = np.atleast_1d(np.asarray(freq_hz)).size
         shape = (n_sets, nf, 2, int(self.n_elements))
         out = dict(f_uu=np.full((n_sets, nf), np.nan + 0j), curvature=np.full(shape, np.nan),
@@ -471,11 +442,7 @@ class ElementCableModel:
                    fold=np.zeros((n_sets, nf), dtype=bool), residual=np.full((n_sets, nf), np.inf))
         iterations = 0
         if keep.size:
-            sub = {k: (v[keep] if v.size == n_sets and n_sets > 1 else v) for k, v in p.items()}
-            st = self.state(damper, freq_hz, amplitude_mm_pp, segments=segments, **sub)
-            for k in out:
-                out[k][keep] = getattr(st, k)
-            iterations = st.iterations
+            iterations = self._scatter(out, keep, self.state(damper, freq_hz, amplitude_mm_pp, segments=segments, **sub))
         return ElementCableState(**out, iterations=iterations, mesh=self._mesh.copy())
 
     def _linear_curvatures(self, c, sigma):

@@ -1,5 +1,6 @@
-"""The fast cable model's sections (:class:`sbcal.model.cable.CableModel`): each law's section compliance
-tabulated over curvature and looked up, and the statically determinate arms' Gauss sections."""
+"""Below both cable models: the frequency grid they are solved on; and the fast model's sections
+(:class:`sbcal.model.cable.CableModel`): each law's section compliance tabulated over curvature and looked
+up, and the statically determinate arms' Gauss sections."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..core.errors import InputError
 from .hysteresis import HysteresisLaw
 
 
@@ -19,6 +21,42 @@ _TINY = 1e-300
 # curvatures [1/m] scanned for the law's transition (where the slip part has lost half its stuck
 # value); the compliance table spans ``table_decades`` either side of it
 _SCAN = 10.0 ** np.arange(-9.0, 3.01, 1.0 / 3.0)
+
+# --- both models: the frequency grid ---------------------------------------------------------------
+
+def segments_from_frequencies(freq_hz) -> np.ndarray:
+    """Test index per line, a new test starting wherever the frequency does not increase.
+
+    Returns
+    -------
+    ndarray of int, shape (n_freq,)
+    """
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    return np.concatenate([[0], np.cumsum(np.diff(f) <= 0)]).astype(int)
+
+
+def _grid(freq_hz, amplitude_mm_pp, segments, per_set=False):
+    """Validated frequencies [Hz], amplitudes [mm p-p] and test segments, each shape (n_freq,)
+    (``per_set``: amplitudes may also be (n_sets or 1, n_freq), returned 2-D then)."""
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    if f.ndim != 1 or not np.all(np.isfinite(f) & (f > 0)):
+        raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
+    amp = np.asarray(amplitude_mm_pp, dtype=float)
+    if per_set and amp.ndim == 2 and amp.shape[1] == f.size:
+        pass  # one amplitude per (set, line)
+    elif amp.ndim > 1 or amp.size not in (1, f.size):
+        shapes = f"({f.size},)" + (f" or (n_sets, {f.size})" if per_set else "")
+        raise InputError(f"amplitude_mm_pp: expected a scalar or shape {shapes}, got shape {amp.shape}")
+    else:
+        amp = np.broadcast_to(amp.reshape(-1), f.shape)
+    if not np.all(np.isfinite(amp) & (amp > 0)):
+        raise InputError("amplitude_mm_pp: expected finite amplitudes > 0 [mm p-p]")
+    seg = segments_from_frequencies(f) if segments is None else np.asarray(segments)
+    if seg.shape != f.shape:
+        raise InputError(f"segments: expected shape {f.shape}, got {seg.shape}")
+    return f, amp, seg
+
+
 # --- the fast model: statically determinate arms ---------------------------------------------------
 
 @dataclass(frozen=True, eq=False)

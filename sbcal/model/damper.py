@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..core._io import bundled_names, read_toml, resolve_bundled
+from ..core._io import bundled_names, name_and_description, read_toml, resolve_bundled
 from ..core.errors import InputError
 
 
@@ -87,17 +87,13 @@ class Damper:
         return self.m1 + self.m2 + self.mc + self.mu * (self.L1 + self.L2)
 
 
+# the clamp and both masses are rigid bodies with the same three keys: (key, field prefix, required, check)
+_BODY_KEYS = (("mass_kg", "m", True, "pos"), ("inertia_kg_m2", "J", True, "nonneg"), ("offset_m", "a", False, "any"))
+
 # (table, key) -> (Damper field, required, check) ; check in {"pos", "nonneg", "any"}
-_FIELDS = (
-    ("clamp", "mass_kg", "mc", True, "pos"),
-    ("clamp", "inertia_kg_m2", "Jc", True, "nonneg"),
-    ("clamp", "offset_m", "ac", False, "any"),
-    ("mass1", "mass_kg", "m1", True, "pos"),
-    ("mass1", "inertia_kg_m2", "J1", True, "nonneg"),
-    ("mass1", "offset_m", "a1", False, "any"),
-    ("mass2", "mass_kg", "m2", True, "pos"),
-    ("mass2", "inertia_kg_m2", "J2", True, "nonneg"),
-    ("mass2", "offset_m", "a2", False, "any"),
+_FIELDS = tuple((table, key, prefix + suffix, required, check)
+                for table, suffix in (("clamp", "c"), ("mass1", "1"), ("mass2", "2"))
+                for key, prefix, required, check in _BODY_KEYS) + (
     ("cable", "length1_m", "L1", True, "pos"),
     ("cable", "length2_m", "L2", True, "pos"),
     ("cable", "linear_density_kg_m", "mu", True, "nonneg"),
@@ -177,14 +173,7 @@ def _number(path: str, key: str, value, check: str) -> float:
 
 def parse_damper(doc: dict, path: str = "<damper>") -> Damper:
     """Validate a parsed TOML document and build a :class:`Damper` (see :func:`load_damper`)."""
-    name = doc.get("name")
-    if name is None:
-        raise InputError(f"{path}: key 'name': missing")
-    if not isinstance(name, str) or not name.strip():
-        raise InputError(f"{path}: key 'name': expected a non-empty string, got {name!r}")
-    description = doc.get("description", "")
-    if not isinstance(description, str):
-        raise InputError(f"{path}: key 'description': expected a string, got {type(description).__name__}")
+    name, description = name_and_description(doc, path)
     values = {}
     for table, key, field, required, check in _FIELDS:
         full = f"{table}.{key}"

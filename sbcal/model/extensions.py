@@ -69,14 +69,13 @@ EXTENSIONS = {e.id: e for e in (
               "a mass on the table that the empty-table calibration did not cancel"),
     Extension("sensor_delay", False, "phase_linear",
               "a time lag between the force and the displacement channels"),
-    Extension("viscous_damping", False, "structured",
-              "part of the cable's damping is viscous: the loss factor grows with frequency"),
-    Extension("asymmetric_damping", False, "structured",
-              "the two arms damp differently"),
-    Extension("base_rocking", False, "structured",
-              "the table rotates as it moves up and down"),
-    Extension("frequency_dependent_stiffness", False, "structured",
-              "the cable stiffens (or softens) with frequency: a viscoelastic cable"),
+    # per-test model changes with no signature of their own: a structured (correlated) misfit screens them in
+    *(Extension(id_, False, "structured", what) for id_, what in (
+        ("viscous_damping", "part of the cable's damping is viscous: the loss factor grows with frequency"),
+        ("asymmetric_damping", "the two arms damp differently"),
+        ("base_rocking", "the table rotates as it moves up and down"),
+        ("frequency_dependent_stiffness", "the cable stiffens (or softens) with frequency: a viscoelastic cable"),
+    )),
 )}
 """The catalogue, by id, in the order of ``shared/notes/model.md``."""
 

@@ -18,6 +18,10 @@ from .law_base import _DELTA_EJ, HysteresisLaw, LawParameter, _masing_loop, jenk
 
 __all__ = ["IwanLaw", "Iwan5Law", "IwanTailLaw", "LognormalIwanLaw"]
 
+_CHI_MACRO = LawParameter("chi_macro", "1/m", "curvature amplitude at which every wire slips (macro-slip)")
+_MACRO_RATIO = LawParameter("macro_ratio", "1", ">= 0: wires slipping only at chi_macro, relative to the spread part",
+                            include_low=True)
+
 # --- Iwan (Segalman's four parameters) ----------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -49,17 +53,11 @@ class IwanLaw(HysteresisLaw):
     name: ClassVar[str] = "iwan"
     parameters: ClassVar[tuple] = (
         _DELTA_EJ,
-        LawParameter("chi_macro", "1/m", "curvature amplitude at which every wire slips (macro-slip)"),
-        LawParameter("micro_exponent", "1", "c > -1: slip-curvature density ~ phi^c; micro-slip W ~ chi_a^(c+3)"),
-        LawParameter("macro_ratio", "1", ">= 0: wires slipping only at chi_macro, relative to the spread part"),
+        _CHI_MACRO,
+        LawParameter("micro_exponent", "1", "c > -1: slip-curvature density ~ phi^c; micro-slip W ~ chi_a^(c+3)",
+                     low=-1.0),
+        _MACRO_RATIO,
     )
-
-    def _domain(self, name, v):
-        if name == "micro_exponent":
-            return v > -1
-        if name == "macro_ratio":
-            return v >= 0
-        return v > 0
 
     def _rigidity(self, chi, *, delta_EJ, chi_macro, micro_exponent, macro_ratio):
         c = micro_exponent
@@ -142,7 +140,8 @@ def _slip_integral(x1, x2, p):
 
 
 _CHI_MICRO = LawParameter("chi_micro", "1/m", "curvature amplitude below which every wire sticks (the lower cut-off)")
-_DENSITY_EXPONENT = LawParameter("density_exponent", "1", "c > -5/2: slip-curvature density ~ phi^c above chi_micro")
+_DENSITY_EXPONENT = LawParameter("density_exponent", "1", "c > -5/2: slip-curvature density ~ phi^c above chi_micro",
+                                 low=-2.5)
 
 
 @dataclass(frozen=True)
@@ -171,26 +170,8 @@ class Iwan5Law(HysteresisLaw):
     """
 
     name: ClassVar[str] = "iwan5"
-    parameters: ClassVar[tuple] = (
-        _DELTA_EJ,
-        _CHI_MICRO,
-        LawParameter("chi_macro", "1/m", "curvature amplitude at which every wire slips (macro-slip)"),
-        _DENSITY_EXPONENT,
-        LawParameter("macro_ratio", "1", ">= 0: wires slipping only at chi_macro, relative to the spread part"),
-    )
-
-    def _domain(self, name, v):
-        if name == "density_exponent":
-            return v > -2.5
-        if name == "macro_ratio":
-            return v >= 0
-        return v > 0
-
-    def valid(self, **params) -> np.ndarray:
-        """As :meth:`HysteresisLaw.valid`, and ``chi_micro < chi_macro``."""
-        ok = super().valid(**params)
-        with np.errstate(invalid="ignore"):
-            return ok & (np.asarray(params["chi_micro"], dtype=float) < np.asarray(params["chi_macro"], dtype=float))
+    parameters: ClassVar[tuple] = (_DELTA_EJ, _CHI_MICRO, _CHI_MACRO, _DENSITY_EXPONENT, _MACRO_RATIO)
+    ordered: ClassVar[tuple] = (("chi_micro", "chi_macro"),)
 
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
         shape = np.broadcast_shapes(np.shape(chi), np.shape(delta_EJ), np.shape(chi_micro), np.shape(chi_macro),
@@ -255,21 +236,9 @@ class IwanTailLaw(HysteresisLaw):
         _CHI_MICRO,
         LawParameter("chi_tail", "1/m", "curvature where the slip-curvature density's power changes to the tail's"),
         _DENSITY_EXPONENT,
-        LawParameter("tail_exponent", "1", "-5/2 < c_t < -1: density ~ phi^c_t beyond chi_tail"),
+        LawParameter("tail_exponent", "1", "-5/2 < c_t < -1: density ~ phi^c_t beyond chi_tail", low=-2.5, high=-1.0),
     )
-
-    def _domain(self, name, v):
-        if name == "density_exponent":
-            return v > -2.5
-        if name == "tail_exponent":
-            return (v > -2.5) & (v < -1.0)
-        return v > 0
-
-    def valid(self, **params) -> np.ndarray:
-        """As :meth:`HysteresisLaw.valid`, and ``chi_micro < chi_tail``."""
-        ok = super().valid(**params)
-        with np.errstate(invalid="ignore"):
-            return ok & (np.asarray(params["chi_micro"], dtype=float) < np.asarray(params["chi_tail"], dtype=float))
+    ordered: ClassVar[tuple] = (("chi_micro", "chi_tail"),)
 
     @staticmethod
     def _scale(delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent):

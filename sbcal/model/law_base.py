@@ -3,7 +3,8 @@ Masing's rule (:class:`HysteresisLaw`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import KW_ONLY, dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -16,11 +17,26 @@ __all__ = ["LawParameter", "HysteresisLaw", "jenkins_rigidity"]
 
 @dataclass(frozen=True)
 class LawParameter:
-    """Name, SI unit and meaning of one law parameter."""
+    """Name, SI unit, meaning and domain of one law parameter.
+
+    The domain is the interval from ``low`` to ``high``, open at an end unless ``include_low`` or
+    ``include_high`` closes it; the default ``(0, inf)`` is that of a scale.
+    """
 
     name: str
     unit: str
     meaning: str
+    _: KW_ONLY
+    low: float = 0.0
+    high: float = math.inf
+    include_low: bool = False
+    include_high: bool = False
+
+    def contains(self, v: np.ndarray) -> np.ndarray:
+        """Boolean mask: the values ``v`` lie in the domain."""
+        above = v >= self.low if self.include_low else v > self.low
+        below = v <= self.high if self.include_high else v < self.high
+        return above & below
 
 
 _DELTA_EJ = LawParameter("delta_EJ", "N m^2", "rigidity the slip part adds while the wires stick (EJ_max - EJ_min)")
@@ -54,12 +70,15 @@ def jenkins_rigidity(x):
 class HysteresisLaw:
     """Base of the strand-slip law families.
 
-    Subclasses set :attr:`name` and :attr:`parameters` and implement :meth:`_rigidity` (the
-    describing function on validated, broadcast arrays) and :meth:`steady_loop`.
+    Subclasses set :attr:`name` and :attr:`parameters` (each with its domain), :attr:`ordered` where
+    parameters bound one another, and implement :meth:`_rigidity` (the describing function on
+    validated, broadcast arrays) and :meth:`steady_loop`.
     """
 
     name: ClassVar[str] = ""
     parameters: ClassVar[tuple] = ()
+    ordered: ClassVar[tuple] = ()
+    """Pairs ``(lower, upper)`` of parameter names: the domain also needs ``lower < upper``."""
     min_tests: ClassVar[int] = 1
     """Tests (amplitudes) a cable state needs before the family is compared on it."""
 
@@ -78,15 +97,19 @@ class HysteresisLaw:
         return {n: np.asarray(params[n], dtype=float) for n in names}
 
     def valid(self, **params) -> np.ndarray:
-        """Boolean mask (broadcast shape of the parameters): the parameters lie in the law's domain."""
+        """Boolean mask (broadcast shape of the parameters): the parameters lie in the law's domain
+        (each finite and in its own, each pair of :attr:`ordered` increasing)."""
         p = self._arrays(params)
         ok = np.ones(np.broadcast_shapes(*(v.shape for v in p.values())), dtype=bool)
         for name, v in p.items():
             ok &= np.isfinite(v) & self._domain(name, v)
+        with np.errstate(invalid="ignore"):
+            for lower, upper in self.ordered:
+                ok &= p[lower] < p[upper]
         return ok
 
     def _domain(self, name: str, v: np.ndarray) -> np.ndarray:
-        return v > 0
+        return next(p for p in self.parameters if p.name == name).contains(v)
 
     def slip_rigidity(self, chi_a, **params) -> np.ndarray:
         """First-harmonic complex secant rigidity of the slip part at curvature amplitude ``chi_a``.
