@@ -5,7 +5,9 @@ own curves as the bench recordings), packed by the real writer :func:`sbcal.infe
 What is tested is the prediction's plumbing and its numbers, not the sampler.
 """
 
+import json
 import pickle
+import shutil
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -14,6 +16,7 @@ import pytest
 
 from sbcal import STANDARD_GRID_HZ, InputError, load_damper
 from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
 from sbcal.model.cable import CableModel
 from sbcal.inference.cable_fit import CableFit, CableForward, cable_config, cable_likelihood, store_cable
@@ -21,7 +24,7 @@ from sbcal.cli import main
 from sbcal.model.damper import Damper, FILE_KEYS, resolve_damper, with_value
 from sbcal.model.fem import dynamic_stiffness, natural_frequencies
 from sbcal.model.hysteresis import law_for
-from sbcal.design.cable_run import load_cable_run
+from sbcal.design.cable_run import RANGE_STATUS, load_cable_run
 from sbcal.design.impedance import impedance_from_cable
 from sbcal.design.predict import EXTRAPOLATION_MARGIN, _resonances, model_error_of, predict
 from sbcal.design.predict_store import read_prediction, read_sweep, store_prediction, store_sweep
@@ -54,7 +57,7 @@ def _store(root, *, converged=True, seed=0, spread=0.02):
         noise = 0.01 * (rng.standard_normal((6, fuu.size)) + 1j * rng.standard_normal((6, fuu.size)))
         frames.append(curves_to_frame(d.name, t, STANDARD_GRID_HZ, a, fuu[None] * np.exp(noise)))
     write_bench(pd.concat(frames, ignore_index=True), root / "bench.csv")
-    like = cable_likelihood(d, load_bench(root / "bench.csv"), list(TESTS), LAW)
+    like = cable_likelihood(d, clean_bench(load_bench(root / "bench.csv")), list(TESTS), LAW)
     draws = {}
     for n in like.prior.names:
         base = TRUTH.get(n, getattr(d, n, None))
@@ -182,13 +185,15 @@ def test_own_geometry_reproduces_the_calibration_posterior_predictive(run, dampe
 
 
 def test_model_error_is_the_calibration_residual(run, damper1):
-    """The model error is the rms, per calibrated amplitude, of the stored run means about the median
-    of the calibration's model curves; the bands with it are those of the draws times independent
-    normal errors of that scale."""
+    """The model error, stored with the cable run by its writer, is the rms, per calibrated amplitude,
+    of the stored run means about the median of the calibration's model curves (every draw: the
+    store has fewer than 50); the bands with it are those of the draws times independent normal
+    errors of that scale."""
     const = read_netcdf(run / "posterior.nc")
     f, amp = np.asarray(const.constant_data["freq_hz"]), np.asarray(const.constant_data["amplitude_mm_pp"])
     obs = const.observed_data
-    err = model_error_of(run, n_draws=1000)
+    err = model_error_of(run)
+    assert load_cable_run(run).summary["residual_scale"] == err.as_dict()
     for k, a in enumerate((0.2, 1.0)):
         sel = amp == a
         ref = _reference(run, damper1, f[sel], a)
@@ -212,6 +217,42 @@ def test_model_error_is_the_calibration_residual(run, damper1):
     narrow = np.log(q.stiffness_n_per_m[0, 2] / q.stiffness_n_per_m[0, 0])
     assert np.all(wide > narrow)
     np.testing.assert_allclose(p.stiffness_n_per_m[0, 1], q.stiffness_n_per_m[0, 1], rtol=0.01)
+
+
+def _edited_store(run, tmp_path, edit):
+    """A copy of the stored cable run with its summary.json edited by ``edit(summary)``."""
+    out = tmp_path / "runs" / "damper1" / "cable-dry"
+    shutil.copytree(run, out)
+    s = json.loads((out / "summary.json").read_text())
+    edit(s)
+    (out / "summary.json").write_text(json.dumps(s))
+    return out
+
+
+def test_a_store_without_the_residual_scale_says_so(run, tmp_path):
+    """A cable run stored before the residual scale was: the prediction goes on without model error and
+    says why in one line; a malformed one is bad input naming the file and the key."""
+    old = _edited_store(run, tmp_path / "old", lambda s: s.pop("residual_scale"))
+    p = predict(old, NEW, amplitude_mm_pp=1.0, n_draws=4)
+    assert p.model_error is None
+    note = [w for w in p.warnings if "model error" in w]
+    assert len(note) == 1 and "\n" not in note[0] and "summary.json: key 'residual_scale': missing" in note[0]
+    bad = _edited_store(run, tmp_path / "bad", lambda s: s["residual_scale"].update(logmag_sd=[0.01]))
+    with pytest.raises(InputError, match=r"cable-dry/summary.json: key 'residual_scale': expected lists of one length"):
+        model_error_of(bad)
+
+
+def test_one_extrapolation_rule(run):
+    """predict and span judge a state by the same rule: the median over draws of its largest arm
+    curvature against the calibrated range, with the margin on both sides; no stored range, no flags."""
+    c = load_cable_run(run)
+    lo, hi = c.curvature_range
+    m = 1 + EXTRAPOLATION_MARGIN
+    top = np.array([lo / m * 0.99, lo / m * 1.01, hi, hi * m * 0.99, hi * m * 1.01, np.nan])
+    assert [RANGE_STATUS[k] for k in c.range_status(top)] == ["below_range", "ok", "ok", "ok", "extrapolated", "ok"]
+    assert c.range_warning() == ""
+    none = replace(c, curvature_range=(np.nan, np.nan))
+    assert not none.range_status(top).any() and "key 'tests_reached': missing" in none.range_warning()
 
 
 def test_new_damper_takes_its_own_offsets_and_tolerances(run, damper1):
@@ -269,6 +310,7 @@ def test_extrapolation_marks_where_the_arms_bend_beyond_the_calibration(run):
     assert not p.extrapolated[0].any()
     assert p.extrapolated[1].sum() >= 5
     np.testing.assert_array_equal(p.extrapolated, p.curvature_max > hi * (1 + EXTRAPOLATION_MARGIN))
+    np.testing.assert_array_equal(p.extrapolated, c.range_status(p.curvature_max) != 0)
     frame = p.to_frame()
     assert frame.loc[frame.test == "4-4", "extrapolated"].sum() == p.extrapolated[1].sum()
     v = predict(run, NEW, velocity_m_s=0.1, n_draws=12)

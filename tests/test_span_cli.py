@@ -187,6 +187,32 @@ def test_wind_beyond_the_usual_band_only_warns(run, tmp_path, capsys):
     assert any("extrapolation" in w for w in read_span(tmp_path / "o")["warnings"])
 
 
+def test_span_judges_the_law_by_the_rule_of_predict(run):
+    """The dampers' states on the span are judged by :meth:`CableRun.range_status` (as predict's lines):
+    the median over draws of the largest arm curvature at each damper's clamp amplitude."""
+    from dataclasses import replace
+
+    from sbcal.design.cable_run import load_cable_run
+
+    cable = load_cable_run(run)
+    study = span_study("drake", run, position_m=2.5, n_freq=12, n_draws=8)
+    r = study.result
+    imp = impedance_from_cable(run, "damper1", n_draws=8)
+    top = np.median(imp.curvature_max(r.freq_hz, r.damper_amplitude_m[0]), axis=0)
+    status = cable.range_status(top)
+    assert study.extrapolated_hz == tuple(r.freq_hz[status == 1]) and len(study.extrapolated_hz) >= 3
+    assert study.below_range_hz == () and study.calibrated_curvature == cable.curvature_range
+    assert any("beyond the" in w and "1/m of the cable's calibration" in w for w in study.warnings)
+    doc = study.to_dict()
+    assert doc["extrapolated_hz"] == list(study.extrapolated_hz) and doc["below_range_hz"] == []
+    assert doc["calibrated_amplitude_mm_pp"] == [0.2, 1.0]
+    # a range above every state the span reaches: all below it
+    high = span_study("drake", "damper1", cable=replace(cable, curvature_range=(1e3, 2e3)), position_m=2.5, n_freq=12,
+                      n_draws=8)
+    assert high.below_range_hz == tuple(r.freq_hz) and high.extrapolated_hz == ()
+    assert any("below the 1e+03 1/m" in w for w in high.warnings)
+
+
 def test_library_names_the_keywords(run):
     with pytest.raises(InputError, match=r"damper 'damper1' has no cable law"):
         span_study("drake", "damper1", position_m=1.0)

@@ -15,7 +15,17 @@ from ..inference.store import cable_state_of
 from ..model.damper import GEOMETRY, Damper
 
 
-__all__ = ["CableRun", "load_cable_run"]
+__all__ = ["EXTRAPOLATION_MARGIN", "RANGE_STATUS", "CableRun", "load_cable_run"]
+
+EXTRAPOLATION_MARGIN = 0.10
+"""A state of the cable is outside the calibration when its largest arm curvature exceeds the largest
+curvature the calibration's tests reached by more than this fraction, or falls below their least by as
+much: a margin for the difference between the posterior median's state, which the calibrated range
+is taken from, and the median over draws it is compared with."""
+
+RANGE_STATUS = ("ok", "extrapolated", "below_range")
+"""Codes of :meth:`CableRun.range_status`: 0 inside the calibrated curvature range, 1 beyond it, 2
+below it (the words of the span's status codes, :data:`sbcal.design.span.STATUS`)."""
 
 _EFFECT_PARAMS = ("delay_s", "fixture_mass_kg", "rocking_rad_per_m")
 
@@ -40,7 +50,7 @@ class CableRun:
         The calibration damper, from the stored ``damper_values`` (None when not stored).
     curvature_range : tuple of float
         Least and largest curvature amplitude [1/m] the calibration's tests reached (``tests_reached``;
-        NaN when not stored).
+        NaN when not stored): the range the law is calibrated over (:meth:`range_status`).
     """
 
     path: Path
@@ -70,6 +80,37 @@ class CableRun:
             if p and p.constant:
                 out.add(p.below_mm_pp)
         return sorted(out)
+
+    def range_status(self, curvature_max) -> np.ndarray:
+        """Where states of the cable lie against the calibrated curvature range: the one rule of
+        ``predict`` and ``span``.
+
+        Parameters
+        ----------
+        curvature_max : array_like, shape (...)
+            Per state (a line, or a damper on a span at one frequency): the median over the posterior
+            draws of the largest curvature amplitude along the arms [1/m]; NaN counts as inside.
+
+        Returns
+        -------
+        ndarray of int8, shape (...)
+            Codes of :data:`RANGE_STATUS`: 1 above ``curvature_range[1] * (1 + EXTRAPOLATION_MARGIN)``,
+            2 below ``curvature_range[0] / (1 + EXTRAPOLATION_MARGIN)``, else 0; all 0 when the run
+            stores no range (:meth:`range_warning`).
+        """
+        top = np.asarray(curvature_max, float)
+        lo, hi = self.curvature_range
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            return np.zeros(top.shape, dtype=np.int8)
+        above, below = top > hi * (1 + EXTRAPOLATION_MARGIN), top < lo / (1 + EXTRAPOLATION_MARGIN)
+        return np.where(above, 1, np.where(below, 2, 0)).astype(np.int8)
+
+    def range_warning(self) -> str:
+        """'' when the run stores its calibrated curvature range, else one line saying it does not."""
+        if np.all(np.isfinite(self.curvature_range)):
+            return ""
+        return (f"{self.path}/summary.json: key 'tests_reached': missing, so no calibrated curvature range: "
+                "extrapolation not assessed")
 
     def convergence_warning(self) -> str:
         """'' when the posterior converged, else one line saying which parameters did not."""

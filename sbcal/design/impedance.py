@@ -24,7 +24,8 @@ class CableImpedance:
 
     ``impedance(freq_hz (F,), amplitude_m (S, F) or (1, F)) -> complex (S, F)``: ``f_uu`` [N/m] at
     the clamp amplitude ``amplitude_m`` [m, 0-peak] per draw and line, each (draw, line) its own
-    steady state (no sweep history: the span has none). Module-level, picklable.
+    steady state (no sweep history: the span has none); :meth:`curvature_max` the arms' curvature in
+    those states. Module-level, picklable.
 
     Attributes
     ----------
@@ -50,11 +51,20 @@ class CableImpedance:
     def n_draws(self) -> int:
         return int(next(iter(self.params.values())).size)
 
-    def __call__(self, freq_hz, amplitude_m):
+    def _grid(self, freq_hz, amplitude_m):
+        """Lines (F,) [Hz] and amplitudes (S, F) [mm p-p] from the span's (F,) and (S or 1, F) [m, 0-peak]."""
         f = np.atleast_1d(np.asarray(freq_hz, float))
         a = np.asarray(amplitude_m, float)
-        amp = 2e3 * np.broadcast_to(a.reshape(-1, f.size), (self.n_draws, f.size))
-        return self.model.dynamic_stiffness(self.damper, f, amp, **self.params)
+        return f, 2e3 * np.broadcast_to(a.reshape(-1, f.size), (self.n_draws, f.size))
+
+    def __call__(self, freq_hz, amplitude_m):
+        return self.model.dynamic_stiffness(self.damper, *self._grid(freq_hz, amplitude_m), **self.params)
+
+    def curvature_max(self, freq_hz, amplitude_m) -> np.ndarray:
+        """The largest curvature amplitude along the arms [1/m], shape (S, F), in the states of
+        :meth:`__call__` (same arguments); NaN where the solve did not converge."""
+        st = self.model.state(self.damper, *self._grid(freq_hz, amplitude_m), **self.params)
+        return np.where(st.converged, st.curvature_range[..., 1], np.nan)
 
 
 def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0) -> CableImpedance:

@@ -13,9 +13,10 @@ solved at every line, following a stepped-sine sweep up the grid (continuation; 
 
 Per line: the dynamic stiffness ``|f_uu|`` and its phase, the dissipated power
 ``P = 0.5 omega Im(f_uu) X0^2``, each as median and 90 % band over the draws, and whether the line
-is *extrapolated*: the median over draws of the largest curvature amplitude along the arms lies more
-than :data:`EXTRAPOLATION_MARGIN` above the largest the calibration's tests reached (or below their
-smallest): the law is used where no calibration data constrained it.
+is *extrapolated*: the median over draws of the largest curvature amplitude along the arms lies outside
+the calibrated curvature range (:meth:`CableRun.range_status`, the rule ``sbcal span`` applies too:
+more than :data:`EXTRAPOLATION_MARGIN` above the largest curvature the calibration's tests reached, or
+below their least): the law is used where no calibration data constrained it.
 
 *Resonances* are the local maxima against frequency of the damper's mechanical resistance
 ``R = Re(F / V) = Im(f_uu) / omega`` [N s/m] at the test condition (the cable's state at that
@@ -34,7 +35,8 @@ the numbers of those above it).
 curve by a margin the posterior does not carry (the likelihood has no discrepancy term: the posterior
 of the law is far narrower than its misfit). By default (``model_error``) the bands add that margin as
 the calibration showed it: per calibrated amplitude the rms residual of the calibration's run means
-about the median model curve, in ln|f| and in phase (:class:`ModelError`), interpolated in ln(amplitude)
+about the median model curve, in ln|f| and in phase (:class:`ModelError`, computed once when the cable
+run was stored and read from its ``summary.json``: :func:`model_error_of`), interpolated in ln(amplitude)
 to each line's amplitude (held constant beyond the calibrated amplitudes), as independent normal
 errors on every draw and line. The resonances and the design sweeps are those of the model curves.
 
@@ -56,8 +58,8 @@ import pandas as pd
 
 from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
-from .cable_run import (CableRun, _cable_params, _geometry, _is_calibration_damper, _streams, _subset, _tolerance,
-                        _unit_draws, load_cable_run)
+from .cable_run import (EXTRAPOLATION_MARGIN, CableRun, _cable_params, _geometry, _is_calibration_damper, _streams,
+                        _subset, _tolerance, _unit_draws, load_cable_run)
 
 
 __all__ = [
@@ -67,11 +69,6 @@ __all__ = [
 
 QUANTILES = (0.05, 0.5, 0.95)
 """The band's lower end, the median and the upper end (a 90 % band)."""
-
-EXTRAPOLATION_MARGIN = 0.10
-"""A line is extrapolated when its largest arm curvature exceeds the calibrated maximum by more than
-this fraction (or falls below the calibrated minimum by as much): a margin for the difference between
-the posterior median's state, which the calibrated range is taken from, and the median over draws."""
 
 RESONANCE_STEP = 0.005
 """Step of the fine grid of the resonance search in ln f (0.5 % in frequency)."""
@@ -199,20 +196,13 @@ def _resonances(f_fine, fuu, x0, level: float) -> list:
     return out
 
 
-def _flags(top, calibrated) -> np.ndarray:
-    """Extrapolated lines from the median over draws of the largest arm curvature ``top`` (..., F)."""
-    lo, hi = calibrated
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return np.zeros(top.shape, dtype=bool)
-    return (top > hi * (1 + EXTRAPOLATION_MARGIN)) | (top < lo / (1 + EXTRAPOLATION_MARGIN))
-
-
 # --- the model's error, as the calibration showed it ------------------------------------------------
 
 @dataclass(frozen=True)
 class ModelError:
     """The calibration's residual scale per amplitude: rms over its lines at that amplitude of the run
-    means about the median model curve (draws of the posterior through the calibration's own model).
+    means about the median model curve (draws of the posterior through the calibration's own model),
+    stored with the cable run (:func:`model_error_of`).
 
     Attributes
     ----------
@@ -240,48 +230,29 @@ class ModelError:
                 "phase_sd_deg": self.phase_sd_deg.tolist()}
 
 
-def model_error_of(run, *, n_draws: int = 50, seed: int = 0) -> ModelError:
-    """:class:`ModelError` of a stored cable fit: its model on its own lines (the calibration damper, its
-    tests' amplitudes, each test one sweep, its measurement-chain effects) for ``n_draws`` posterior
-    draws, the median curve against the stored run means.
+def model_error_of(run) -> ModelError:
+    """The :class:`ModelError` of a stored cable fit: the residual scale its writer computed
+    (``residual_scale`` of its ``summary.json``; :func:`sbcal.inference.cable_fit.store_cable`).
 
     Raises
     ------
     InputError
-        The run does not store the calibration damper's values or its lines.
+        One line: the summary has no such key (a run stored before it existed) or a malformed one.
     """
-    from ..inference.stats import read_netcdf
-
     cable = load_cable_run(run)
-    if cable.calibration is None:
-        raise InputError(f"{cable.path}: summary.json has no damper_values: the calibration's residuals cannot be formed")
-    idata = read_netcdf(cable.path / "posterior.nc")
+    where = f"{cable.path}/summary.json: key 'residual_scale'"
+    doc = cable.summary.get("residual_scale")
+    if doc is None:
+        raise InputError(f"{where}: missing (a cable run stored before sbcal kept its residual scale; "
+                         "a new 'sbcal cable' run has it)")
     try:
-        const, obs = idata.constant_data, idata.observed_data
-        f = np.asarray(const["freq_hz"], float)
-        amp = np.asarray(const["amplitude_mm_pp"], float)
-        test = np.asarray(const["line_test"]).astype(str)
-        ybar = np.stack([np.asarray(obs["logmag_mean"], float), np.asarray(obs["phase_mean"], float)])
-    except (AttributeError, KeyError) as e:
-        raise InputError(f"{cable.path}: posterior.nc lacks the calibration's lines ({e})") from None
-    idx = _subset(cable, n_draws, _streams(seed)[0])
-    params = {n: cable.draws[n][idx] for n in cable.summary.get("parameters", cable.draws) if n in cable.draws}
-    seg = np.concatenate([[0], np.cumsum(test[1:] != test[:-1])])
-    from ..inference.cable_fit import CableForward
-
-    fwd = CableForward(cable.law, amp, seg, tuple(cable.summary.get("effects", ())))
-    step = max(1, _CHUNK // f.size)
-    fm = np.concatenate([fwd.state(cable.calibration, f, continuation=True,
-                                   **{k: v[i:i + step] for k, v in params.items()})[1]
-                         for i in range(0, idx.size, step)])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        mu = np.stack([np.nanmedian(np.log(np.abs(fm)), axis=0), np.nanmedian(np.angle(fm), axis=0)])
-    r = ybar - mu
-    r[1] = np.remainder(r[1] + np.pi, 2 * np.pi) - np.pi
-    levels = np.unique(amp)
-    sd = np.array([[np.sqrt(np.nanmean(r[q, amp == a] ** 2)) for a in levels] for q in (0, 1)])
-    return ModelError(amplitude_mm_pp=levels, logmag_sd=sd[0], phase_sd_deg=np.degrees(sd[1]))
+        amp, mag, phase = (np.asarray(doc[k], float) for k in ("amplitude_mm_pp", "logmag_sd", "phase_sd_deg"))
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{where}: expected lists of numbers amplitude_mm_pp, logmag_sd, phase_sd_deg") from None
+    if amp.ndim != 1 or amp.size == 0 or mag.shape != amp.shape or phase.shape != amp.shape \
+            or not np.all(amp > 0) or np.any(np.diff(amp) <= 0):
+        raise InputError(f"{where}: expected lists of one length, amplitude_mm_pp > 0 and increasing")
+    return ModelError(amplitude_mm_pp=amp, logmag_sd=mag, phase_sd_deg=phase)
 
 
 _ERROR_SAMPLES = 4000  # (draw, model-error) samples per line behind the bands with model error
@@ -302,16 +273,15 @@ def _bands(fuu, x0, f, error, rng):
 
 # --- the prediction ---------------------------------------------------------------------------------
 
-@dataclass(frozen=True, eq=False)
-class Prediction:
-    """The posterior predictive of a damper built with a calibrated cable (:func:`predict`).
+@dataclass(frozen=True, eq=False, kw_only=True)
+class _FromCable:
+    """What a prediction (:class:`Prediction`) and a design sweep (:class:`sbcal.design.sweep.SweepResult`)
+    share: the damper, the stored cable it is built with, the test conditions and the draws.
 
     Attributes
     ----------
     damper : str
-        The predicted damper's name.
-    damper_values : dict
-        Its nominal values (the :class:`sbcal.model.damper.Damper` fields).
+        The predicted damper's name (a sweep's base damper).
     cable : str
         The cable run directory.
     cable_damper, state, law : str
@@ -320,6 +290,65 @@ class Prediction:
         ``"amplitude"`` (constant clamp amplitude) or ``"velocity"`` (constant clamp velocity).
     levels : ndarray, shape (L,)
         The test conditions: amplitudes [mm p-p] or velocities [m/s].
+    n_draws : int
+        Posterior draws used (each with its own geometry draw).
+    seed : int
+    tolerance_pct : dict
+        +- tolerance [%] per damper field drawn (uniform).
+    own_offsets : bool
+        The posterior's ``a1``, ``a2`` were used (the calibration damper itself).
+    bench_effects : bool
+        The calibration bench's measurement-chain effects were applied.
+    warnings : tuple of str
+    versions : dict
+    """
+
+    damper: str
+    cable: str
+    cable_damper: str
+    state: str
+    law: str
+    mode: str
+    levels: np.ndarray
+    n_draws: int
+    seed: int
+    tolerance_pct: dict
+    own_offsets: bool
+    bench_effects: bool
+    warnings: tuple = ()
+    versions: dict = field(default_factory=dict)
+
+    def _summary(self) -> dict:
+        """The shared fields, JSON-ready."""
+        return {"damper": self.damper, "cable": self.cable, "cable_damper": self.cable_damper, "state": self.state,
+                "law": self.law, "mode": self.mode, "levels": [float(v) for v in self.levels],
+                "n_draws": self.n_draws, "seed": self.seed, "tolerance_pct": self.tolerance_pct,
+                "own_offsets": self.own_offsets, "bench_effects": self.bench_effects,
+                "warnings": list(self.warnings), "versions": self.versions}
+
+
+def _from_cable(cable: CableRun, damper: Damper, *, mode: str, levels, n_draws: int, seed: int, tolerance: dict,
+                own: bool, bench_effects: bool, notes=()) -> dict:
+    """The :class:`_FromCable` fields of a result computed from ``cable``; the warnings lead with the
+    run's own (posterior not converged, no calibrated curvature range), then ``notes``."""
+    from ..inference.runs import versions
+
+    of_run = tuple(w for w in (cable.convergence_warning(), cable.range_warning()) if w)
+    return dict(damper=damper.name, cable=str(cable.path), cable_damper=cable.damper, state=cable.state,
+                law=cable.law, mode=mode, levels=levels, n_draws=int(n_draws), seed=int(seed),
+                tolerance_pct={k: float(v) for k, v in tolerance.items()}, own_offsets=bool(own),
+                bench_effects=bool(bench_effects), warnings=of_run + tuple(notes), versions=versions())
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Prediction(_FromCable):
+    """The posterior predictive of a damper built with a calibrated cable (:func:`predict`): the
+    attributes of :class:`_FromCable` (the damper, the cable run, the conditions, the draws) and these.
+
+    Attributes
+    ----------
+    damper_values : dict
+        The predicted damper's nominal values (the :class:`sbcal.model.damper.Damper` fields).
     freq_hz : ndarray, shape (F,)
         Frequency lines [Hz], increasing.
     amplitude_mm_pp : ndarray, shape (L, F)
@@ -330,7 +359,8 @@ class Prediction:
     curvature_max : ndarray, shape (L, F)
         Median over the draws of the largest curvature amplitude along the arms [1/m].
     extrapolated : ndarray of bool, shape (L, F)
-        The line bends the arms outside the calibrated range (:data:`EXTRAPOLATION_MARGIN`).
+        The line bends the arms outside the calibrated range, above or below
+        (:meth:`sbcal.design.cable_run.CableRun.range_status` not ``"ok"``).
     fold_share, converged_share : ndarray, shape (L, F)
         Fraction of the draws with two steady states at the line (the sweep's branch is used), and
         with a converged solve (the others are left out of the quantiles).
@@ -338,29 +368,11 @@ class Prediction:
         Every condition's resonances (``level`` says whose).
     calibrated_curvature : tuple of float
         The calibrated curvature range [1/m] (least, largest).
-    n_draws : int
-        Posterior draws used (each with its own geometry draw).
-    seed : int
-    tolerance_pct : dict
-        +- tolerance [%] per damper field drawn (uniform).
-    own_offsets : bool
-        The posterior's ``a1``, ``a2`` were used (the calibration damper itself).
-    bench_effects : bool
-        The calibration bench's measurement-chain effects were applied.
     model_error : dict or None
         The :class:`ModelError` added to the bands (``as_dict()``), None when not.
-    warnings : tuple of str
-    versions : dict
     """
 
-    damper: str
     damper_values: dict
-    cable: str
-    cable_damper: str
-    state: str
-    law: str
-    mode: str
-    levels: np.ndarray
     freq_hz: np.ndarray
     amplitude_mm_pp: np.ndarray
     stiffness_n_per_m: np.ndarray
@@ -372,14 +384,7 @@ class Prediction:
     converged_share: np.ndarray
     resonances: tuple
     calibrated_curvature: tuple
-    n_draws: int
-    seed: int
-    tolerance_pct: dict
-    own_offsets: bool
-    bench_effects: bool
     model_error: dict | None = None
-    warnings: tuple = ()
-    versions: dict = field(default_factory=dict)
 
     def labels(self) -> list:
         """The ``test`` label of each condition: ``1-1`` (1 mm p-p), ``v0.1`` (0.1 m/s)."""
@@ -401,19 +406,13 @@ class Prediction:
 
     def summary(self) -> dict:
         """JSON-ready: everything but the per-line bands (those are in :meth:`to_frame`)."""
-        return {
-            "damper": self.damper, "damper_values": self.damper_values, "cable": self.cable,
-            "cable_damper": self.cable_damper, "state": self.state, "law": self.law, "mode": self.mode,
-            "levels": [float(v) for v in self.levels], "tests": self.labels(),
-            "freq_hz": self.freq_hz.tolist(),
+        return self._summary() | {
+            "damper_values": self.damper_values, "tests": self.labels(), "freq_hz": self.freq_hz.tolist(),
             "curvature_max": self.curvature_max.tolist(), "fold_share": self.fold_share.tolist(),
             "converged_share": self.converged_share.tolist(),
             "resonances": [dataclasses.asdict(r) for r in self.resonances],
             "calibrated_curvature": list(self.calibrated_curvature),
-            "extrapolated_lines": int(self.extrapolated.sum()),
-            "n_draws": self.n_draws, "seed": self.seed, "tolerance_pct": self.tolerance_pct,
-            "own_offsets": self.own_offsets, "bench_effects": self.bench_effects, "model_error": self.model_error,
-            "warnings": list(self.warnings), "versions": self.versions,
+            "extrapolated_lines": int(self.extrapolated.sum()), "model_error": self.model_error,
         }
 
 
@@ -478,7 +477,8 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         Apply the calibration bench's fitted measurement-chain effects.
     model_error : bool
         Add the calibration's residual scale to the bands (:func:`model_error_of`; module docstring).
-        Off, the bands are the posterior's and the tolerances' alone.
+        Off, or when the run stores none (a warning), the bands are the posterior's and the tolerances'
+        alone.
 
     Returns
     -------
@@ -489,8 +489,6 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     InputError
         A missing run or damper file, amplitudes or velocities <= 0, bad frequencies.
     """
-    from ..inference.runs import versions
-
     cable = load_cable_run(run)
     damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
     mode, levels = _levels(cable, amplitude_mm_pp, velocity_m_s)
@@ -503,7 +501,7 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     errors, notes = None, []
     if model_error:
         try:
-            errors = model_error_of(cable, seed=seed)
+            errors = model_error_of(cable)
         except InputError as e:
             notes.append(f"no model error in the bands: {e}")
     noise = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
@@ -526,24 +524,21 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             cmax[i] = np.nanmedian(r["cmax"], axis=0)
-        extra[i] = _flags(cmax[i], cable.curvature_range)
+        extra[i] = cable.range_status(cmax[i]) != 0
         fold[i], conv[i] = r["fold"].mean(axis=0), r["converged"].mean(axis=0)
         amps[i] = 2e3 * x0
         xf = _x0(mode, level, fine)
         rf = _evaluate(cable.law, effects, damper, fine, xf, params, n)
         resonances += _resonances(fine, rf["fuu"], xf, level)
-    notes = [w for w in (cable.convergence_warning(),) if w] + notes
-    if not np.all(np.isfinite(cable.curvature_range)):
-        notes.append(f"{cable.path}: no calibrated curvature range stored (tests_reached): extrapolation not assessed")
     if conv.min() < 1:
         notes.append(f"the cable model did not converge for {100 * (1 - conv.mean()):.2g} % of the (draw, line) "
                      "pairs: left out of the bands")
     values = {k: v for k, v in dataclasses.asdict(damper).items() if k not in ("tolerance",)}
     return Prediction(
-        damper=damper.name, damper_values=values, cable=str(cable.path), cable_damper=cable.damper,
-        state=cable.state, law=cable.law, mode=mode, levels=levels, freq_hz=f, amplitude_mm_pp=amps,
-        stiffness_n_per_m=out["stiffness"], phase_deg=out["phase"], power_w=out["power"], curvature_max=cmax,
-        extrapolated=extra, fold_share=fold, converged_share=conv, resonances=tuple(resonances),
-        calibrated_curvature=tuple(float(v) for v in cable.curvature_range), n_draws=int(n), seed=int(seed),
-        tolerance_pct={k: float(v) for k, v in tolerance.items()}, own_offsets=own, bench_effects=bool(bench_effects),
-        model_error=errors.as_dict() if errors is not None else None, warnings=tuple(notes), versions=versions())
+        **_from_cable(cable, damper, mode=mode, levels=levels, n_draws=n, seed=seed, tolerance=tolerance, own=own,
+                      bench_effects=bench_effects, notes=notes),
+        damper_values=values, freq_hz=f, amplitude_mm_pp=amps, stiffness_n_per_m=out["stiffness"],
+        phase_deg=out["phase"], power_w=out["power"], curvature_max=cmax, extrapolated=extra, fold_share=fold,
+        converged_share=conv, resonances=tuple(resonances),
+        calibrated_curvature=tuple(float(v) for v in cable.curvature_range),
+        model_error=errors.as_dict() if errors is not None else None)

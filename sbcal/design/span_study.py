@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,14 +16,15 @@ from ..data.labels import parse_label
 from ..inference.store import span_dir as store_span_dir
 from ..inference.store import span_dirs
 from ..model.damper import Damper
+from .cable_run import RANGE_STATUS
 from .conductor import Conductor
 from .placement import Placement, optimise_position
-from .span import SpanResult, _jsonable, _positions, _q, energy_balance
+from .span import _AMPLITUDE_FLOOR_M, SpanResult, _jsonable, _positions, _q, energy_balance
 from .vibration import _wind_check
 
 
 __all__ = [
-    "plot_span", "AMPLITUDE_MARGIN", "SpanStudy", "span_study", "span_dir", "store_span", "read_span",
+    "plot_span", "SpanStudy", "span_study", "span_dir", "store_span", "read_span",
     "stored_spans",
 ]
 
@@ -86,10 +88,6 @@ def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -
 # ---------------------------------------------------------------------------------------------
 # A study (``sbcal span``): a stored damper on a conductor, stored and read back
 
-AMPLITUDE_MARGIN = 0.10
-"""A damper's clamp amplitude counts as beyond the calibration when it exceeds the largest amplitude
-of the cable run's tests by more than this fraction (the law is extrapolated there: a warning)."""
-
 _NO_DAMPER = ("none", "")
 
 
@@ -113,9 +111,13 @@ class SpanStudy:
         Seed of the posterior subset and the geometry draws.
     calibrated_amplitude_mm_pp : tuple of float
         Least and largest clamp amplitude of the cable run's tests [mm p-p] (empty without a damper).
-    extrapolated_hz : tuple of float
-        Frequencies at which the median over draws of the dampers' largest clamp amplitude exceeds
-        the calibrated range by more than :data:`AMPLITUDE_MARGIN`.
+    calibrated_curvature : tuple of float
+        Least and largest curvature amplitude [1/m] the calibration's tests reached along the arms:
+        the range the cable law is calibrated over (empty without a damper or when the run stores none).
+    extrapolated_hz, below_range_hz : tuple of float
+        Frequencies at which some damper's state lies beyond, or below, the calibrated curvature range:
+        the median over draws of the largest curvature along its arms
+        (:meth:`sbcal.design.cable_run.CableRun.range_status`, the rule of ``sbcal predict``).
     warnings : tuple of str
         The balance's and the study's (cable posterior not converged, law extrapolated).
     """
@@ -129,7 +131,9 @@ class SpanStudy:
     law: str = ""
     seed: int = 0
     calibrated_amplitude_mm_pp: tuple = ()
+    calibrated_curvature: tuple = ()
     extrapolated_hz: tuple = ()
+    below_range_hz: tuple = ()
     warnings: tuple = ()
 
     @property
@@ -156,7 +160,8 @@ class SpanStudy:
         doc = {"label": self.label, "damper": self.damper, "cable": self.cable, "cable_damper": self.cable_damper,
                "state": self.state, "law": self.law, "seed": self.seed,
                "calibrated_amplitude_mm_pp": list(self.calibrated_amplitude_mm_pp),
-               "extrapolated_hz": list(self.extrapolated_hz)}
+               "calibrated_curvature": list(self.calibrated_curvature),
+               "extrapolated_hz": list(self.extrapolated_hz), "below_range_hz": list(self.below_range_hz)}
         doc |= self.result.to_dict()
         doc["worst_stress_mpa"] = self.worst_stress_mpa()
         doc["placement"] = self.placement.to_dict() if self.placement is not None else None
@@ -197,6 +202,41 @@ def _calibrated_amplitudes(run) -> tuple:
     labels = (parse_label(t) for t in run.summary.get("tests", []))
     amps = [a for p in labels if p for a in p.amplitudes]
     return (min(amps), max(amps)) if amps else ()
+
+
+def _law_range(run, imp, result: SpanResult) -> tuple[dict, list]:
+    """Where the dampers' states lie against the cable's calibrated curvature range.
+
+    Per damper position and frequency, the median over draws of the largest curvature along its arms
+    at its clamp amplitude X_d (the states the balance used) is judged by
+    :meth:`sbcal.design.cable_run.CableRun.range_status`. Returns ``{word: frequencies [Hz] at which
+    some damper is so}`` for ``"extrapolated"`` and ``"below_range"``, and one warning for each that occurs.
+    """
+    xd = result.damper_amplitude_m  # (J, S, F) [m, 0-peak]; NaN where no balance was found
+    # a damper at a node is evaluated at the floor amplitude, as the balance evaluates it
+    curv = np.array([imp.curvature_max(result.freq_hz, np.maximum(np.nan_to_num(x), _AMPLITUDE_FLOOR_M)) for x in xd])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frequency no draw balanced stays NaN
+        top = np.nanmedian(np.where(np.isfinite(xd), curv, np.nan), axis=1)  # (J, F)
+    status = run.range_status(top)
+    lo, hi = run.curvature_range
+    f, n = result.freq_hz, result.freq_hz.size
+    out, notes = {}, []
+    for code, word in enumerate(RANGE_STATUS[1:], start=1):
+        hit = (status == code).any(axis=0)
+        out[word] = tuple(float(x) for x in f[hit])
+        if not hit.any():
+            continue
+        where = f"at {hit.sum()} of {n} frequencies ({f[hit].min():.3g}-{f[hit].max():.3g} Hz)"
+        if word == "extrapolated":
+            notes.append(f"the dampers bend the cable's arms to {np.nanmax(top[:, hit]):.3g} 1/m (median over draws) "
+                         f"{where}, beyond the {hi:.3g} 1/m of the cable's calibration: the cable law is "
+                         "extrapolated there")
+        else:
+            notes.append(f"the dampers bend the cable's arms to only {np.nanmin(top[:, hit]):.3g} 1/m (median over "
+                         f"draws) {where}, below the {lo:.3g} 1/m of the cable's calibration: the cable law is "
+                         "extrapolated to small curvatures there")
+    return out, notes
 
 
 def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int = 1, wind=(1.0, 7.0),
@@ -263,7 +303,7 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
                 _positions(c, xs, ends)
             except InputError as e:
                 raise InputError(f"{c.source or c.name}: span_length_m = {c.span_length_m:g} m; {e}") from None
-    notes = [w for w in (run.convergence_warning(),) if w]
+    notes = [w for w in (run.convergence_warning(), run.range_warning()) if w]
     imp = impedance_from_cable(run, dmp, n_draws=n_draws, seed=seed)
     placement = None
     if optimise:
@@ -272,20 +312,12 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
                                       wave=wave)
     at = position_m if position_m is not None else placement.best_position_m
     r = energy_balance(c, imp, at, ends=ends, wind=wind, n_freq=n_freq, wave=wave)
-    cal = _calibrated_amplitudes(run)
-    extrapolated = ()
-    if cal:
-        top = 2e3 * np.nan_to_num(r.damper_amplitude_m, nan=0.0).max(axis=0)  # (S, F) mm p-p, largest damper
-        over = np.median(top, axis=0) > (1 + AMPLITUDE_MARGIN) * cal[1]
-        extrapolated = tuple(float(f) for f in r.freq_hz[over])
-        if over.any():
-            notes.append(f"the dampers' clamp amplitude reaches {np.max(np.median(top, axis=0)):.3g} mm p-p (median over "
-                         f"draws) at {over.sum()} of {over.size} frequencies ({min(extrapolated):.3g}-"
-                         f"{max(extrapolated):.3g} Hz), beyond the {cal[1]:g} mm p-p of the cable's calibration: "
-                         "the cable law is extrapolated there")
+    law_range, law_notes = _law_range(run, imp, r)
+    curvature = tuple(float(v) for v in run.curvature_range) if np.all(np.isfinite(run.curvature_range)) else ()
     return SpanStudy(result=r, placement=placement, damper=dmp.name, cable=str(run.path), cable_damper=run.damper,
-                     state=run.state, law=run.law, seed=int(seed), calibrated_amplitude_mm_pp=cal,
-                     extrapolated_hz=extrapolated, warnings=tuple(r.warnings) + tuple(notes))
+                     state=run.state, law=run.law, seed=int(seed), calibrated_amplitude_mm_pp=_calibrated_amplitudes(run),
+                     calibrated_curvature=curvature, extrapolated_hz=law_range["extrapolated"],
+                     below_range_hz=law_range["below_range"], warnings=tuple(r.warnings) + tuple(notes + law_notes))
 
 
 def span_dir(study: SpanStudy, runs_dir=None) -> Path:

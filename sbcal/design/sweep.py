@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -14,8 +14,8 @@ from ..core.errors import InputError
 from ..model.damper import FILE_KEYS, Damper, resolve_damper, with_value
 from .cable_run import (_cable_params, _geometry, _is_calibration_damper, _streams, _subset, _tolerance, _unit_draws,
                         load_cable_run)
-from .predict import (_MODES, _draw_checks, _evaluate, _fine_grid, _flags, _frequencies, _levels, _quantiles,
-                      _resonances, _x0)
+from .predict import (_MODES, _draw_checks, _evaluate, _FromCable, _fine_grid, _from_cable, _frequencies, _levels,
+                      _quantiles, _resonances, _x0)
 
 
 __all__ = ["TRACK_STEP", "parse_sweep", "SweepResult", "sweep"]
@@ -40,20 +40,17 @@ def parse_sweep(spec: str) -> tuple[str, np.ndarray]:
     return key, np.linspace(start, stop, int(n))
 
 
-@dataclass(frozen=True, eq=False)
-class SweepResult:
-    """Resonances and peak dissipated power against one design variable (:func:`sweep`).
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SweepResult(_FromCable):
+    """Resonances and peak dissipated power against one design variable (:func:`sweep`): the attributes
+    of :class:`sbcal.design.predict._FromCable` (``damper`` the base damper) and these.
 
     Attributes
     ----------
-    damper, field : str
-        The base damper's name and the swept damper-file field (``"cable.length1_m"``).
+    field : str
+        The swept damper-file field (``"cable.length1_m"``).
     values : ndarray, shape (V,)
         The field's values (SI, as in the damper file).
-    cable, cable_damper, state, law, mode : str
-        As in :class:`Prediction`.
-    levels : ndarray, shape (L,)
-        The test conditions (amplitudes [mm p-p] or velocities [m/s]).
     resonance_hz : ndarray, shape (V, L, K, 3)
         The :data:`QUANTILES` of the frequency [Hz] of resonance track k (NaN at values where the
         track has no resonance). A track follows one resonance across the values (:data:`TRACK_STEP`);
@@ -63,34 +60,18 @@ class SweepResult:
     peak_power_w : ndarray, shape (V, L, 3)
         Quantiles of each draw's largest dissipated power over the band [W].
     extrapolated : ndarray of bool, shape (V, L)
-        Some line of the band bends the arms outside the calibrated range.
+        Some line of the band bends the arms outside the calibrated range (as :class:`Prediction`'s).
     fold_share : ndarray, shape (V, L)
         Fraction of (draw, line) pairs with two steady states.
-    n_draws, seed, tolerance_pct, own_offsets, bench_effects, warnings, versions
-        As in :class:`Prediction`.
     """
 
-    damper: str
     field: str
     values: np.ndarray
-    cable: str
-    cable_damper: str
-    state: str
-    law: str
-    mode: str
-    levels: np.ndarray
     resonance_hz: np.ndarray
     resonance_share: np.ndarray
     peak_power_w: np.ndarray
     extrapolated: np.ndarray
     fold_share: np.ndarray
-    n_draws: int
-    seed: int
-    tolerance_pct: dict
-    own_offsets: bool
-    bench_effects: bool
-    warnings: tuple = ()
-    versions: dict = field(default_factory=dict)
 
     def to_frame(self) -> pd.DataFrame:
         """One row per (value, condition): ``resonance<k>_hz`` (median), ``_q05``, ``_q95``, ``_share``,
@@ -111,14 +92,11 @@ class SweepResult:
         return pd.DataFrame(rows)
 
     def summary(self) -> dict:
-        return {"damper": self.damper, "field": self.field, "values": self.values.tolist(), "cable": self.cable,
-                "cable_damper": self.cable_damper, "state": self.state, "law": self.law, "mode": self.mode,
-                "levels": self.levels.tolist(), "resonance_hz": _jsonable(self.resonance_hz),
-                "resonance_share": _jsonable(self.resonance_share), "peak_power_w": _jsonable(self.peak_power_w),
-                "extrapolated": self.extrapolated.tolist(), "fold_share": self.fold_share.tolist(),
-                "n_draws": self.n_draws, "seed": self.seed, "tolerance_pct": self.tolerance_pct,
-                "own_offsets": self.own_offsets, "bench_effects": self.bench_effects, "warnings": list(self.warnings),
-                "versions": self.versions}
+        """JSON-ready (NaN as null)."""
+        return self._summary() | {
+            "field": self.field, "values": self.values.tolist(), "resonance_hz": _jsonable(self.resonance_hz),
+            "resonance_share": _jsonable(self.resonance_share), "peak_power_w": _jsonable(self.peak_power_w),
+            "extrapolated": self.extrapolated.tolist(), "fold_share": self.fold_share.tolist()}
 
 
 def _jsonable(a):
@@ -185,8 +163,6 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
     -------
     SweepResult
     """
-    from ..inference.runs import versions
-
     cable = load_cable_run(run)
     damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
     if field_key not in FILE_KEYS:
@@ -227,7 +203,7 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
             warnings.simplefilter("ignore", RuntimeWarning)
             peak[:, i] = _quantiles(np.nanmax(power, axis=2), axis=1).T
             top = np.nanmedian(r["cmax"].reshape(nv, n, -1), axis=1)
-        extra[:, i] = _flags(top, cable.curvature_range).any(axis=1)
+        extra[:, i] = (cable.range_status(top) != 0).any(axis=1)
         fold[:, i] = r["fold"].reshape(nv, -1).mean(axis=1)
         conv[:, i] = r["converged"].reshape(nv, -1).mean(axis=1)
         fuu = r["fuu"].reshape(nv, n, fine.size)
@@ -241,12 +217,10 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
         for k, track in enumerate(level_tracks):
             for v, r_ in track:
                 hz[v, i, k], share[v, i, k] = r_.freq_hz, r_.share
-    notes = [w for w in (cable.convergence_warning(),) if w]
+    notes = []
     if conv.min() < 1:
         notes.append(f"the cable model did not converge for {100 * (1 - conv.mean()):.2g} % of the (draw, line) pairs")
-    return SweepResult(damper=damper.name, field=field_key, values=vals, cable=str(cable.path),
-                       cable_damper=cable.damper, state=cable.state, law=cable.law, mode=mode, levels=levels,
-                       resonance_hz=hz, resonance_share=share, peak_power_w=peak, extrapolated=extra,
-                       fold_share=fold, n_draws=int(n), seed=int(seed),
-                       tolerance_pct={k: float(v) for k, v in tolerance.items()}, own_offsets=own,
-                       bench_effects=bool(bench_effects), warnings=tuple(notes), versions=versions())
+    return SweepResult(**_from_cable(cable, damper, mode=mode, levels=levels, n_draws=n, seed=seed, tolerance=tolerance,
+                                     own=own, bench_effects=bench_effects, notes=notes),
+                       field=field_key, values=vals, resonance_hz=hz, resonance_share=share, peak_power_w=peak,
+                       extrapolated=extra, fold_share=fold)
