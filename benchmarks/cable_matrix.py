@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnose_matrix import STUB  # noqa: E402
 
 from sbcal.data.bench import write_bench
+from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import load_bench  # noqa: E402
 from sbcal.inference.cable_fit import cable_likelihood, read_cable  # noqa: E402
 from sbcal.model.damper import load_damper  # noqa: E402
@@ -63,7 +64,7 @@ def run_law(damper, law: str, seed: int, tmp: Path, families=FITTED_LAWS) -> dic
                          slip_tol=1e-8)
     path = tmp / f"{law}.csv"
     write_bench(record(damper, config, TESTS, rng=np.random.default_rng([seed, list(LAWS).index(law)])), path)
-    bench = load_bench(path)
+    bench = clean_bench(load_bench(path))
     t0 = time.perf_counter()
     verdict = diagnose(damper, bench, seed=seed, progress=False, store=tmp / law,
                        config=DiagnoseConfig(laws=tuple(families)))

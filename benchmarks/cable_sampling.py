@@ -23,8 +23,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
-from sbcal.inference.cable_fit import fit_cable, state_tests  # noqa: E402
+from sbcal.data.labels import state_tests  # noqa: E402
+from sbcal.inference.cable_fit import fit_cable  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
 
@@ -65,7 +67,7 @@ def main():
             for law in args.laws:
                 tests = groups[state]
                 load0, c0, t0 = os.getloadavg()[0], cpu_s(), time.perf_counter()
-                fit = fit_cable(damper, bench, tests, law, seed=args.seed, workers=args.workers)
+                fit = fit_cable(damper, clean_bench(bench, dampers=[name]), tests, law, seed=args.seed, workers=args.workers)
                 wall, cpu, load1 = time.perf_counter() - t0, cpu_s() - c0, os.getloadavg()[0]
                 r = fit.result
                 ess = min(r.ess_bulk_min, r.ess_tail_min)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from sbcal.data.bench import write_bench
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
 from sbcal.model.damper import load_damper, resolve_damper
 from sbcal.diagnosis.diagnose import diagnose
@@ -105,7 +106,7 @@ def run_case(damper, case: str, seed: int, tests, tmp: Path, **kwargs) -> dict:
     frame = record(damper, config, tests, rng=np.random.default_rng([seed, list(CASES).index(case)]))
     path = tmp / f"{damper.name}_{case}.csv"
     write_bench(frame, path)
-    return diagnose(damper, load_bench(path), seed=seed, **kwargs)
+    return diagnose(damper, clean_bench(load_bench(path)), seed=seed, **kwargs)
 
 
 def main(argv=None) -> int:

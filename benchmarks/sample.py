@@ -24,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy.optimize import differential_evolution  # noqa: E402
 
+from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.inference.calibrate import test_likelihood  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
@@ -81,9 +82,10 @@ def main():
     args = ap.parse_args()
     damper = resolve_damper(args.damper)
     bench = load_bench(args.bench or default_bench_path())
-    like, cleaned = test_likelihood(damper, bench, args.test)
-    print(f"{damper.name} {args.test}: {len(cleaned.data.runs)} runs x {like.freq_hz.size} lines "
-          f"({len(cleaned.removed_runs)} outlier runs removed)")
+    data = clean_bench(bench, dampers=[damper.name])
+    like = test_likelihood(damper, data, args.test)
+    print(f"{damper.name} {args.test}: {like.y.shape[1]} runs x {like.freq_hz.size} lines "
+          f"({len(data.removed_runs(damper.name, args.test))} outlier runs removed)")
 
     t_c_runs = []
     for k in range(3):  # the posterior three times (different seeds): its wall time varies with tau

@@ -24,8 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
-from sbcal.inference.cable_fit import cable_likelihood, state_tests  # noqa: E402
+from sbcal.data.labels import state_tests  # noqa: E402
+from sbcal.inference.cable_fit import cable_likelihood  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from sbcal.core.workers import one_blas_thread  # noqa: E402
 
@@ -35,7 +37,7 @@ def _calls(job) -> float:
     one, sets, repeat = job
     damper = resolve_damper("damper1")
     bench = load_bench(default_bench_path())
-    like = cable_likelihood(damper, bench, state_tests(bench.tests("damper1"))["dry"], "iwan5")
+    like = cable_likelihood(damper, clean_bench(bench, dampers=["damper1"]), state_tests(bench.tests("damper1"))["dry"], "iwan5")
     lo, hi = like.prior.z_lower, like.prior.z_upper
     z = lo + (hi - lo) * np.random.default_rng(0).uniform(0.3, 0.7, (sets, like.prior.ndim))
     with one_blas_thread() if one else contextlib.nullcontext():

@@ -29,13 +29,15 @@ from .core._io import write_json
 from .core.errors import InputError
 from .core.workers import default_workers, one_blas_thread, run_jobs
 from .data.bench import rows_digest
+from .data.clean_bench import CleanBench
 from .data.cleaning import DEFAULT_Z_THRESHOLD, quality_table
 from .data.summary import bench_summary
 from .inference.store import data_path, diagnose_path
 from .model.damper import Damper
 
 
-__all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "sample_inputs",
+__all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "clean",
+           "sample_inputs",
            "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run", "STAGES"]
 
 STAGES = ("clean", "sample", "diagnose", "map", "report")  # the order of ``run``; ``--until`` names one
@@ -75,8 +77,6 @@ class Settings:
             object.__setattr__(self, "sampler", SamplerConfig())
         if self.diagnose is None:
             object.__setattr__(self, "diagnose", DiagnoseConfig())
-        # one threshold for every stage's cleaning: the diagnosis cleans as the sample stage does
-        object.__setattr__(self, "diagnose", replace(self.diagnose, z_threshold=self.z_threshold))
 
 
 # --- digests -------------------------------------------------------------------------------
@@ -181,6 +181,20 @@ def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict
     return doc, f"redone ({_why(why)})"
 
 
+def clean(bench, dampers, store, settings: Settings, *, say=None) -> CleanBench:
+    """Stage 1 for every damper (:func:`clean_damper`, reused where fresh), and the cleaned bench that
+    every later stage reads: the stored decisions, not a new cleaning. ``say`` gets one line per damper."""
+    removed = {}
+    for damper in dampers:
+        doc, status = clean_damper(bench, damper, store, settings)
+        if say is not None:
+            say(f"{damper.name}: clean: {status}")
+        stored = CleanBench.from_stored(bench, {damper.name: doc["tests"]}, z_threshold=settings.z_threshold,
+                                        source=str(data_path(store, damper.name)))
+        removed.update(stored.removed)
+    return CleanBench(bench, removed, settings.z_threshold)
+
+
 def _only(bench, damper: str):
     """The bench restricted to one damper (a summary of its rows only)."""
     from .data.bench import BenchData
@@ -197,10 +211,10 @@ def _read_json(path: Path) -> dict | None:
         raise InputError(f"{path}: not valid JSON ({e.msg}, line {e.lineno})") from None
 
 
-def sample_inputs(bench, damper: Damper, test: str, settings: Settings) -> dict:
+def sample_inputs(data, damper: Damper, test: str, settings: Settings) -> dict:
     """What a test's posterior is made from (stored as its ``inputs``)."""
     sampler = {k: v for k, v in asdict(settings.sampler).items() if k != "workers"}
-    return {"bench_rows": rows_digest(bench, damper.name, test), "damper": _damper_digest(damper),
+    return {"bench_rows": rows_digest(data, damper.name, test), "damper": _damper_digest(damper),
             "priors": file_digest(settings.priors), "paramset": settings.paramset,
             "settings": {"sampler": sampler, "z_threshold": settings.z_threshold},
             "seed": settings.seed, "sbcal": _version()}
@@ -211,7 +225,7 @@ class SampleJob:
     """One test's posterior, as a worker runs it (picklable: it travels to a process or a cluster)."""
 
     damper: Damper
-    bench: object
+    data: CleanBench
     test: str
     store: str
     settings: Settings
@@ -224,7 +238,7 @@ class DiagnoseJob:
     """One damper's diagnosis, as a worker runs it."""
 
     damper: Damper
-    bench: object
+    data: CleanBench
     store: str
     settings: Settings
     inputs: dict
@@ -237,14 +251,15 @@ def _sample_job(job: SampleJob):
 
     s = job.settings
     with one_blas_thread():
-        return calibrate_test(job.damper, job.bench, job.test, paramset=s.paramset, seed=s.seed, out=job.store,
-                              config=replace(s.sampler, workers=1), prior_path=s.priors, z_threshold=s.z_threshold,
-                              progress=False, command=job.command, inputs=job.inputs)
+        return calibrate_test(job.damper, job.data, job.test, paramset=s.paramset, seed=s.seed, out=job.store,
+                              config=replace(s.sampler, workers=1), prior_path=s.priors, progress=False,
+                              command=job.command, inputs=job.inputs)
 
 
-def sample_tests(bench, work, store, settings: Settings, *, executor=None, command: str = "", reuse: bool = True,
-                 progress: bool = True) -> dict:
-    """Stage 2: the posterior of every ``(damper, test)`` in ``work`` (reused where fresh).
+def sample_tests(data: CleanBench, work, store, settings: Settings, *, executor=None, command: str = "",
+                 reuse: bool = True, progress: bool = True) -> dict:
+    """Stage 2: the posterior of every ``(damper, test)`` in ``work`` (reused where fresh), from the kept
+    runs of the cleaned bench ``data`` (:func:`clean`).
 
     Jobs run in ``executor`` (a cluster), else in ``settings.workers`` local processes. Returns
     ``{(damper name, test): (summary, status)}``.
@@ -254,13 +269,13 @@ def sample_tests(bench, work, store, settings: Settings, *, executor=None, comma
 
     out, jobs = {}, []
     for damper, t in work:
-        inputs = sample_inputs(bench, damper, t, settings)
+        inputs = sample_inputs(data, damper, t, settings)
         stored = read_summary(run_dir(store, damper.name, t, settings.paramset))
         why = changed(stored, inputs)
         if reuse and not why:
             out[damper.name, t] = (stored, "reused")
         else:
-            jobs.append(SampleJob(damper, bench, t, store, settings, inputs, command))
+            jobs.append(SampleJob(damper, data, t, store, settings, inputs, command))
             out[damper.name, t] = (None, f"redone ({_why(why)})" if reuse else "sampled")
     label = f"sampling {len(jobs)} test(s)" if progress and jobs else None
     done = run_jobs(_sample_job, jobs, workers=settings.workers, executor=executor, label=label)
@@ -270,10 +285,11 @@ def sample_tests(bench, work, store, settings: Settings, *, executor=None, comma
     return out
 
 
-def diagnose_inputs(bench, damper: Damper, settings: Settings) -> dict:
+def diagnose_inputs(data: CleanBench, damper: Damper, settings: Settings) -> dict:
     """What a damper's diagnosis is made from (stored as its ``inputs``)."""
     diag = {k: v for k, v in asdict(settings.diagnose).items() if k != "workers"}
-    return {"bench_rows": rows_digest(bench, damper.name), "damper": _damper_digest(damper),
+    diag["z_threshold"] = settings.z_threshold
+    return {"bench_rows": rows_digest(data, damper.name), "damper": _damper_digest(damper),
             "priors": {"default": file_digest(settings.priors), "extensions": file_digest(None, "extensions.toml"),
                        "cable": file_digest(None, "cable.toml")},
             "settings": diag, "seed": settings.seed, "sbcal": _version()}
@@ -283,7 +299,7 @@ def _diagnose_job(job: DiagnoseJob):
     from .diagnosis.diagnose import diagnose
 
     s = job.settings
-    doc = diagnose(job.damper, job.bench, seed=s.seed, config=s.diagnose, progress=job.progress,
+    doc = diagnose(job.damper, job.data, seed=s.seed, config=s.diagnose, progress=job.progress,
                    prior_path=s.priors, store=job.store)
     doc["command"] = job.command
     doc["inputs"] = job.inputs
@@ -291,7 +307,7 @@ def _diagnose_job(job: DiagnoseJob):
     return doc
 
 
-def diagnose_dampers(bench, dampers, store, settings: Settings, *, executor=None, command: str = "",
+def diagnose_dampers(data: CleanBench, dampers, store, settings: Settings, *, executor=None, command: str = "",
                      reuse: bool = True, progress: bool = True) -> dict:
     """Stage 3: the diagnosis of every damper (reused where fresh) -> ``<store>/<damper>/diagnose.json``.
 
@@ -300,14 +316,14 @@ def diagnose_dampers(bench, dampers, store, settings: Settings, *, executor=None
     """
     out, jobs = {}, []
     for damper in dampers:
-        inputs = diagnose_inputs(bench, damper, settings)
+        inputs = diagnose_inputs(data, damper, settings)
         stored = _read_json(diagnose_path(store, damper.name))
         why = changed(stored, inputs)
         if reuse and not why:
             out[damper.name] = (stored, "reused")
         else:
             out[damper.name] = (None, f"redone ({_why(why)})" if reuse else "diagnosed")
-            jobs.append(DiagnoseJob(damper, bench, store, settings, inputs, command, progress and executor is None))
+            jobs.append(DiagnoseJob(damper, data, store, settings, inputs, command, progress and executor is None))
     if executor is not None:  # on a cluster each diagnosis is one job: its fits run in that worker, one at a time
         jobs = [replace(j, settings=replace(j.settings, diagnose=replace(j.settings.diagnose, workers=1))) for j in jobs]
     for job, doc in zip(jobs, run_jobs(_diagnose_job, jobs, executor=executor)):
@@ -338,19 +354,17 @@ def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None,
 
     if until not in STAGES:
         raise InputError(f"until: expected one of {', '.join(STAGES)}, got {until!r}")
-    for damper in dampers:
-        _, status = clean_damper(bench, damper, store, settings)
-        say(f"{damper.name}: clean: {status}")
+    data = clean(bench, dampers, store, settings, say=say)
     if until == "clean":
         return None
-    work = [(d, t) for d in dampers for t in bench.tests(d.name)]
-    for (name, t), (summary, status) in sample_tests(bench, work, store, settings, executor=executor,
+    work = [(d, t) for d in dampers for t in data.tests(d.name)]
+    for (name, t), (summary, status) in sample_tests(data, work, store, settings, executor=executor,
                                                      command=command, progress=progress).items():
         flag = "" if summary is None or summary.get("converged") else f"; NOT CONVERGED ({summary.get('reason')})"
         say(f"{name}: sample {t}: {status}{flag}")
     if until == "sample":
         return None
-    for name, (doc, status) in diagnose_dampers(bench, dampers, store, settings, executor=executor,
+    for name, (doc, status) in diagnose_dampers(data, dampers, store, settings, executor=executor,
                                                 command=command, progress=progress).items():
         say(f"{name}: diagnose: {status}; verdict {doc['verdict']}")
     if until == "diagnose":

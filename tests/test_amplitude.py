@@ -110,6 +110,7 @@ def test_joint_model_recovers_known_power_law(tmp_path):
     import pandas as pd
 
     from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
+    from sbcal.data.clean_bench import clean_bench
     from sbcal.inference.amplitude import joint_powerlaw
     from sbcal.data.bench import curves_to_frame, write_bench
     from sbcal.data.readers import load_bench
@@ -125,7 +126,7 @@ def test_joint_model_recovers_known_power_law(tmp_path):
     path = tmp_path / "b.csv"
     write_bench(pd.concat(frames), path)
     cfg = SamplerConfig(nwalkers=32, max_steps=20000, max_draws=500)
-    out = joint_powerlaw(d, load_bench(path), ["0.2-0.2", "0.5-0.5", "1.5-1.5"], seed=4, config=cfg)
+    out = joint_powerlaw(d, clean_bench(load_bench(path)), ["0.2-0.2", "0.5-0.5", "1.5-1.5"], seed=4, config=cfg)
     # a single trial: the truth must lie within 3.29 posterior sd (the 90 % width), a 0.1 % tail
     for name, truth in (("k", k), ("n", n)):
         med, lo, hi = out[name]

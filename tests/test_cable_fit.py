@@ -2,8 +2,10 @@
 
 import numpy as np
 
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import default_bench_path, load_bench
-from sbcal.inference.cable_fit import cable_likelihood, cable_start, compared_laws, state_tests
+from sbcal.data.labels import state_tests
+from sbcal.inference.cable_fit import cable_likelihood, cable_start, compared_laws
 from sbcal.model.hysteresis import FITTED_LAWS
 
 # Where the engine's own start (one differential-evolution search, seed 1) stopped on damper1's dry
@@ -14,7 +16,7 @@ PLATEAU = {"a1": 0.028022, "a2": -0.015354, "EJ_min": 3.3551, "beta_material": 0
 
 
 def test_the_cable_start_finds_the_mode_not_the_plateau(damper1):
-    bench = load_bench(default_bench_path())
+    bench = clean_bench(load_bench(default_bench_path()), dampers=["damper1"])
     like = cable_likelihood(damper1, bench, state_tests(bench.tests("damper1"))["dry"], "iwan5")
     z = cable_start(like, np.random.default_rng(0))
     params = dict(zip(like.prior.names, like.prior.to_natural(z[None])[0]))

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from sbcal.data.bench import write_bench
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.cleaning import remove_outlier_runs
 from sbcal.data.readers import load_bench
 from sbcal.inference.calibrate import likelihood_for
@@ -96,7 +97,7 @@ def small_bench(tmp_path_factory, damper):
     cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.25}, runs=8)
     path = tmp_path_factory.mktemp("diag") / "b.csv"
     write_bench(record(damper, cfg, ["0.5-0.5", "1-1"], rng=np.random.default_rng(11)), path)
-    return load_bench(path)
+    return clean_bench(load_bench(path))
 
 
 def test_noise_only_likelihood_has_no_discrepancy(damper, small_bench):
@@ -201,7 +202,7 @@ def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_
     for all amplitudes beats each test's own constant-EJ fit, test by test."""
     from sbcal.data.readers import default_bench_path
 
-    r = diagnose(resolve_damper("damper1"), load_bench(default_bench_path()), seed=0, progress=False)
+    r = diagnose(resolve_damper("damper1"), clean_bench(load_bench(default_bench_path())), seed=0, progress=False)
     assert r["verdict"] == "strand_slip", r["ranking"]
     assert r["statistics"]["amplitude_trend"]["dry"]["slope"] < 0  # EJ falls with amplitude
     # the bench's cable is a log-normal Iwan law: the Iwan family beats Bouc-Wen by far (measured:
@@ -260,21 +261,22 @@ def test_each_tests_own_delay_of_a_joint_fit(damper, small_bench):
     draws = dict(fit["params"], delay_s=2e-4 + 1e-6 * np.random.default_rng(0).standard_normal(4000))
     key = ("strand_slip+sensor_delay", "dry")
     base = tuple(n for n in like.prior.names if n != "delay_s")
-    out = _parameters("sensor_delay", {key: {"like": like, "params": draws, "names": like.prior.names}}, [key], base,
-                      tests)
+    fit = {"like": like, "params": draws, "names": like.prior.names, "tests": tuple(tests)}
+    out = _parameters("sensor_delay", {key: fit}, [key], base, each_test=True)
     v = out["values"]["delay_s"]
     assert v["scale_factor"] == pytest.approx(factor)
     assert v["q95"] - v["median"] == pytest.approx(1.645 * factor * draws["delay_s"].std(), rel=1e-6)
     assert f"widened {factor:.1f}x" in out["words"]
 
 
-def test_diagnose_cleans_with_the_pipelines_threshold(tmp_path):
-    """The diagnosis removes outlier runs by the run's own threshold (``Settings.z_threshold``), not its own."""
+def test_diagnose_fits_the_runs_the_clean_stage_stored(tmp_path):
+    """The diagnosis fits the runs the pipeline's clean stage kept (``Settings.z_threshold``, stored in
+    ``data.json``): it does not clean again."""
     import pandas as pd
 
     from sbcal.data.bench import curves_to_frame
     from sbcal.diagnosis.fits import _jobs
-    from sbcal.pipeline import Settings
+    from sbcal.pipeline import Settings, clean
 
     d = resolve_damper("damper1")
     rng = np.random.default_rng(5)
@@ -285,9 +287,13 @@ def test_diagnose_cleans_with_the_pipelines_threshold(tmp_path):
     write_bench(pd.concat(frames, ignore_index=True), tmp_path / "b.csv")
     bench = load_bench(tmp_path / "b.csv")
     assert remove_outlier_runs(bench.test("damper1", "0.5-0.5")).removed_runs == (3,)
-    for z, kept in ((None, 5), (1e9, 6)):
-        config = DiagnoseConfig() if z is None else Settings(z_threshold=z).diagnose
+    for z, kept in ((3.0, 5), (1e9, 6)):
+        settings = Settings(z_threshold=z)
+        data = clean(bench, [d], tmp_path / f"runs{z:g}", settings)
+        assert json.loads((tmp_path / f"runs{z:g}" / "damper1" / "data.json").read_text())["tests"]["0.5-0.5"][
+            "removed_runs"] == ([3] if kept == 5 else [])
         for primary in ("baseline", "strand_slip"):
-            for job in _jobs(primary, (), d, bench, ["0.5-0.5", "1-1"], 0, config, None):
+            for job in _jobs(primary, (), damper=d, data=data, tests=["0.5-0.5", "1-1"], seed=0,
+                             config=settings.diagnose, prior_path=None):
                 likes = job.target.likes if isinstance(job.target, JointLikelihood) else [job.target]
                 assert [lk.y.shape[1] for lk in likes] == [kept] * len(likes), (z, primary)

@@ -8,8 +8,9 @@ import pytest
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
 from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
-from sbcal.pipeline import Settings, clean_damper, map_damper, sample_tests
+from sbcal.pipeline import Settings, clean, map_damper, sample_tests
 from sbcal.cli import main
 from sbcal.model.damper import resolve_damper
 from sbcal.inference.sampler import SamplerConfig
@@ -59,8 +60,7 @@ def run_store(tmp_path_factory):
     bench = load_bench(path)
     runs = tmp / "runs"
     settings = Settings(seed=3, sampler=FAST, workers=2)
-    clean_damper(bench, d, runs, settings)
-    sample_tests(bench, [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], runs, settings, progress=False)
+    sample_tests(clean(bench, [d], runs, settings), [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], runs, settings, progress=False)
     map_damper(runs, "damper1", settings)
     return runs
 
@@ -137,7 +137,7 @@ def test_report_shows_the_diagnosis(run_store, tmp_path):
     cfg = BenchConfig(params={"EJ": 9.0, "beta": 0.3}, effects={"sensor_delay": 4e-4}, runs=8)
     path = tmp_path / "delay.csv"
     write_bench(record(d, cfg, ["0.5-0.5", "1-1"], rng=np.random.default_rng(8)), path)
-    doc = diagnose(d, load_bench(path), seed=2, progress=False, effects=["sensor_delay", "fixture_mass"],
+    doc = diagnose(d, clean_bench(load_bench(path)), seed=2, progress=False, effects=["sensor_delay", "fixture_mass"],
                    config=DiagnoseConfig(draws=150))
     write_json(run_store / "damper1" / "diagnose.json", doc)
     out = tmp_path / "rep"

@@ -9,6 +9,7 @@ import pytest
 
 from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
 from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
 from sbcal.inference.calibrate import calibrate_test
 from sbcal.cli import main
@@ -27,7 +28,7 @@ def bench(tmp_path_factory):
     noisy = fuu * np.exp(0.02 * rng.standard_normal((5, F.size)) + 0.01j * rng.standard_normal((5, F.size)))
     path = tmp / "bench.csv"
     write_bench(pd.concat([curves_to_frame("damper1", "0.5-0.5", F, 0.5, noisy)]), path)
-    return load_bench(path)
+    return clean_bench(load_bench(path))
 
 
 def test_stored_run_opens_in_arviz(bench, tmp_path):

@@ -10,6 +10,7 @@ import pytest
 
 from sbcal import STANDARD_GRID_HZ, dynamic_stiffness
 from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
 from sbcal.model.cable import CableModel
 from sbcal.inference.cable_fit import cable_seed, read_cable
@@ -52,7 +53,7 @@ def twin_bench(tmp_path_factory):
     frames = [curves_to_frame("damper1", t, STANDARD_GRID_HZ, 0.5, noisy) for t in ("0.5-0.5", "0.5-0.5-again")]
     path = tmp_path_factory.mktemp("twin") / "bench.csv"
     write_bench(pd.concat(frames, ignore_index=True), path)
-    return load_bench(path)
+    return clean_bench(load_bench(path))
 
 
 def _draws(store, test):
@@ -123,8 +124,9 @@ def test_sbcal_cable_end_to_end_and_diagnose_makes_the_same_fit(cable_bench, tmp
     # diagnose's strand-slip job for the same state and law: the same stream, start and engine settings,
     # so the very same draws as sbcal cable's stored ones
     d = resolve_damper("damper1")
-    bench = load_bench(cable_bench)
-    jobs = _jobs("strand_slip", (), d, bench, ["0.2-0.2", "1-1"], 3, replace(DiagnoseConfig(), laws=(LAW,)), None)
+    data = clean_bench(load_bench(cable_bench))
+    jobs = _jobs("strand_slip", (), damper=d, data=data, tests=["0.2-0.2", "1-1"], seed=3,
+                 config=replace(DiagnoseConfig(), laws=(LAW,)), prior_path=None)
     assert len(jobs) == 1 and jobs[0].key == ("strand_slip", "dry", LAW)
     assert jobs[0].stream.generate_state(4).tolist() == cable_seed(3, "damper1", "dry", LAW).generate_state(4).tolist()
     res = _fit(jobs[0])

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import InputError
-from .options import (bench_for, bench_options, parse_frequencies, parse_set, print_summary, scale_options,
+from .options import (bench_for, bench_options, cleaned_for, parse_frequencies, parse_set, print_summary, scale_options,
                       settings_from, workers_option)
 
 
@@ -71,6 +71,7 @@ def add_sample(sub):
 
 def cmd_sample(args) -> int:
     from ..inference.calibrate import point_fit_test
+    from ..inference.priors import load_prior
     from ..model.damper import resolve_damper
     from ..pipeline import executor_for, sample_tests
 
@@ -80,16 +81,18 @@ def cmd_sample(args) -> int:
     for t in tests:
         bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
     settings = settings_from(args)
+    load_prior(args.params, damper, args.priors)  # fail early on a bad set or file, before anything is stored
+    data = cleaned_for(bench, [damper], args.out, settings)
     if args.method in ("point", "ga"):
         for t in tests:
-            doc = point_fit_test(damper, bench, t, paramset=args.params, seed=args.seed, out=args.out,
+            doc = point_fit_test(damper, data, t, paramset=args.params, seed=args.seed, out=args.out,
                                  prior_path=args.priors)
             vals = ", ".join(f"{k}={v:.4g}" for k, v in doc["parameters"].items())
             print(f"{damper.name} {t} {args.params} (GA point fit): {vals}; cost {doc['cost']:.4g}, "
                   f"{doc['generations']} generations, {doc['wall_s']:.1f} s")
         return 0
     with executor_for(args.scheduler) as executor:
-        done = sample_tests(bench, [(damper, t) for t in tests], args.out, settings, executor=executor,
+        done = sample_tests(data, [(damper, t) for t in tests], args.out, settings, executor=executor,
                             command=args.command_line, reuse=False, progress=not args.quiet)
     for (name, t), (s, _) in done.items():
         print_summary(name, t, args.params, s)
@@ -194,7 +197,9 @@ def cmd_map(args) -> int:
             from ..model.damper import resolve_damper
 
             doc = docs[key]
-            joint = joint_from_runs(resolve_damper(args.damper), bench_for(args), args.runs, doc, args.params,
+            damper = resolve_damper(args.damper)
+            data = cleaned_for(bench_for(args), [damper], args.runs, settings_from(args))
+            joint = joint_from_runs(damper, data, args.runs, doc, args.params,
                                     seed=args.seed, progress=f"{args.damper} joint")
             doc["joint"] = joint
             flag = "" if joint["converged"] else f" NOT CONVERGED ({joint['convergence']['reason']})"

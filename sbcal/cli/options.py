@@ -12,8 +12,8 @@ from ..core.workers import default_workers
 
 
 __all__ = [
-    "Parser", "parse_set", "parse_frequencies", "bench_options", "workers_option", "scale_options", "bench_for",
-    "settings_from", "print_summary",
+    "Parser", "parse_set", "parse_frequencies", "bench_options", "damper_options", "workers_option", "scale_options",
+    "bench_for", "cleaned_for", "settings_from", "print_summary",
 ]
 
 class Parser(argparse.ArgumentParser):
@@ -26,6 +26,7 @@ class Parser(argparse.ArgumentParser):
 def parse_set(items) -> dict:
     """``["EJ=9", "beta=0.3"]`` -> ``{"EJ": 9.0, "beta": 0.3}``, names checked against the model."""
     from ..model.fem import PARAMETER_NAMES
+    from ..simulate.virtual_bench import finite_number
 
     out = {}
     for item in items or ():
@@ -35,13 +36,7 @@ def parse_set(items) -> dict:
             raise InputError(f"--set {item!r}: expected NAME=VALUE")
         if name not in PARAMETER_NAMES:
             raise InputError(f"--set {item!r}: unknown parameter {name!r}; known: {', '.join(PARAMETER_NAMES)}")
-        try:
-            x = float(value)
-        except ValueError:
-            raise InputError(f"--set {item!r}: {value!r} is not a number") from None
-        if not np.isfinite(x):
-            raise InputError(f"--set {item!r}: value is not finite")
-        out[name] = x
+        out[name] = finite_number(value, f"--set {item!r}")
     return out
 
 
@@ -62,6 +57,13 @@ def parse_frequencies(text: str) -> np.ndarray:
 def bench_options(p, what="bench file"):
     p.add_argument("--bench", metavar="PATH", help=f"{what}: .csv, .csv.gz, .xlsx or .parquet (default: the bundled data)")
     p.add_argument("--sheet", metavar="NAME", help="read only this sheet of an .xlsx workbook (default: every sheet)")
+
+
+def damper_options(p):
+    """``--damper`` (one, default damper1) and the bench file it is read from."""
+    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
+                   help="bundled damper name or TOML path (default damper1)")
+    bench_options(p)
 
 
 def workers_option(p, what):
@@ -89,16 +91,28 @@ def bench_for(args):
     return load_bench(path, sheet=getattr(args, "sheet", None))
 
 
+def cleaned_for(bench, dampers, store, settings):
+    """``bench`` cleaned by the pipeline's clean stage in the run store ``store`` (its stored decision
+    reused while fresh, else made and stored): the runs every later stage reads."""
+    from ..pipeline import clean
+
+    for d in dampers:
+        if d.name not in bench.dampers():
+            raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
+    return clean(bench, dampers, store, settings)
+
+
 def settings_from(args, **extra):
     from ..pipeline import Settings
 
     if getattr(args, "workers", 1) < 1:
         raise InputError(f"--workers {args.workers}: must be >= 1")
-    if args.priors:
+    priors = getattr(args, "priors", None)
+    if priors:
         from ..pipeline import file_digest
 
-        file_digest(args.priors)  # fail early on a missing prior file
-    return Settings(paramset=getattr(args, "params", "theta1"), seed=args.seed, priors=args.priors,
+        file_digest(priors)  # fail early on a missing prior file
+    return Settings(paramset=getattr(args, "params", "theta1"), seed=args.seed, priors=priors,
                     workers=getattr(args, "workers", 1), **extra)
 
 

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from ..core.errors import InputError
 from ..inference.store import cable_dir, diagnose_path
-from .options import bench_for, bench_options, scale_options, settings_from, workers_option
+from .options import bench_for, cleaned_for, damper_options, scale_options, settings_from, workers_option
 
 
 __all__ = ["add_diagnose", "cmd_diagnose", "add_cable", "cmd_cable"]
@@ -16,9 +15,7 @@ def add_diagnose(sub):
                        description="Fit the per-test model, locate where the recordings leave its predictive band, "
                                    "refit the catalogue's physics extensions the residuals point to, compare them "
                                    "by PSIS-LOO and give a verdict (docs/diagnose.md).")
-    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
-                   help="bundled damper name or TOML path (default damper1)")
-    bench_options(p)
+    damper_options(p)
     p.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels (default: all of the damper's)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the base parameters (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -42,20 +39,20 @@ def cmd_diagnose(args) -> int:
     from ..pipeline import diagnose_inputs, executor_for
 
     damper = resolve_damper(args.damper)
-    bench = bench_for(args)
     settings = settings_from(args)
+    data = cleaned_for(bench_for(args), [damper], args.runs, settings)
     config = replace(settings.diagnose, workers=args.workers)
     with executor_for(args.scheduler) as executor:
         if executor is not None:  # the diagnosis as one job on the cluster
-            result = executor.submit(diagnose, damper, bench, args.tests, seed=args.seed,
+            result = executor.submit(diagnose, damper, data, args.tests, seed=args.seed,
                                      config=replace(config, workers=1), progress=False,
                                      prior_path=args.priors, store=args.runs).result()
         else:
-            result = diagnose(damper, bench, args.tests, seed=args.seed, config=config, progress=not args.quiet,
+            result = diagnose(damper, data, args.tests, seed=args.seed, config=config, progress=not args.quiet,
                               prior_path=args.priors, store=args.runs)
     result["command"] = args.command_line
     if args.tests is None:  # a whole-damper diagnosis: 'sbcal run' may reuse it while its inputs hold
-        result["inputs"] = diagnose_inputs(bench, damper, settings)
+        result["inputs"] = diagnose_inputs(data, damper, settings)
     if args.json:
         write_json(args.json, result, indent=1)
     stored = diagnose_path(args.runs, damper.name)
@@ -105,9 +102,7 @@ def add_cable(sub):
                                    "another state) over all its tests at once, on the distributed cable model "
                                    "(docs/cable.md), and store each state's posterior as "
                                    "<runs>/<damper>/cable-<state>/posterior.nc + summary.json.")
-    p.add_argument("--damper", default="damper1", metavar="NAME|PATH",
-                   help="bundled damper name or TOML path (default damper1)")
-    bench_options(p)
+    damper_options(p)
     p.add_argument("--law", default="best", choices=list(FITTED_LAWS) + list(_LAW_ALIASES) + ["best"],
                    help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
                         "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), iwan_tail (Iwan "
@@ -128,13 +123,9 @@ def cmd_cable(args) -> int:
     from ..model.damper import resolve_damper
 
     damper = resolve_damper(args.damper)
-    bench = bench_for(args)
-    if damper.name not in bench.dampers():
-        raise InputError(f"{bench.source}: no rows of damper {damper.name!r} (has: {', '.join(bench.dampers())})")
-    if args.workers < 1:
-        raise InputError(f"--workers {args.workers}: must be >= 1")
+    data = cleaned_for(bench_for(args), [damper], args.runs, settings_from(args))
     laws = None if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
-    fits, comparison = fit_damper_cable(damper, bench, laws=laws, seed=args.seed, prior_path=args.priors,
+    fits, comparison = fit_damper_cable(damper, data, laws=laws, seed=args.seed, prior_path=args.priors,
                                         workers=args.workers, progress=not args.quiet)
     best = comparison["best"]
     for state, fit in sorted(fits[best].items()):

@@ -395,6 +395,9 @@ def run_scores(test: TestData, *, floor: float = NOISE_FLOOR) -> np.ndarray:
 class CleanedTest:
     """A test after outlier-run removal.
 
+    What :func:`remove_outlier_runs` decides for one test; the pipeline stores the decision
+    (:class:`sbcal.data.clean_bench.CleanBench`).
+
     Attributes
     ----------
     data : TestData

@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 
 
-__all__ = ["TestLabel", "parse_label", "cable_state", "DRY"]
+__all__ = ["TestLabel", "parse_label", "cable_state", "state_tests", "DRY"]
 
 DRY = "dry"
 """The cable state of a label without a suffix."""
@@ -63,3 +63,11 @@ def cable_state(label) -> str:
     another form is its own state)."""
     p = parse_label(label)
     return p.state if p else str(label)
+
+
+def state_tests(tests) -> dict:
+    """``{state: [tests]}`` in the order the tests come."""
+    out = {}
+    for t in tests:
+        out.setdefault(cable_state(t), []).append(t)
+    return out

@@ -26,15 +26,15 @@ model it and show the fit improve (``docs/diagnose.md``).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..data.bench import rows_digest
-from ..inference.cable_fit import SECONDARY, CableFit, state_tests, store_cable
+from ..inference.cable_fit import SECONDARY, CableFit, store_cable
 from ..inference.runs import versions
-from ..inference.stats import elpd_difference, loo
+from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
@@ -45,34 +45,62 @@ from .words import _parameters
 
 __all__ = ["DiagnoseConfig", "diagnose", "curves_frame"]
 
+# --- what one diagnosis shares ----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Case:
+    """One damper's diagnosis: its tests, their baseline likelihoods (the run means every check
+    standardises), the settings, and how fits are made (:func:`sbcal.diagnosis.fits._jobs`)."""
+
+    damper: Damper
+    data: object
+    tests: tuple
+    likes: tuple
+    config: DiagnoseConfig
+    seed: int
+    prior_path: object
+    progress: bool
+
+    @property
+    def n_runs(self) -> dict:
+        return {t: lk.y.shape[1] for t, lk in zip(self.tests, self.likes)}
+
+    def fit(self, models, stage: str) -> dict:
+        """Fit ``models`` (``(primary, secondary effects)`` pairs) in one batch of jobs; ``{key: fit}``."""
+        jobs = []
+        for primary, secondary in models:
+            jobs += _jobs(primary, secondary, damper=self.damper, data=self.data, tests=self.tests, seed=self.seed,
+                          config=self.config, prior_path=self.prior_path)
+        return _run_fits(jobs, self.config, self.label(stage))
+
+    def label(self, stage: str) -> str | None:
+        return f"diagnose {self.damper.name}: {stage}" if self.progress else None
+
+
 # --- models' checks and summaries ------------------------------------------------------------------
 
-def _model_curves(fits, keys, tests, joint: bool):
+def _model_curves(fits, keys):
     """Per test: posterior mean, variance and median of the model curves ``(2, n_freq)``."""
     mean, var, med = {}, {}, {}
     for key in keys:
         fit = fits[key]
-        ts = state_tests(tests)[key[1]] if joint else [key[1]]
-        for t, m, v, d in zip(ts, fit["mu_mean"], fit["mu_var"], fit["mu_median"]):
+        for t, m, v, d in zip(fit["tests"], fit["mu_mean"], fit["mu_var"], fit["mu_median"]):
             mean[t], var[t], med[t] = m, v, d
     return mean, var, med
 
 
-def _check_model(name, fits, keys, tests, likes, n_runs, config):
+def _check_model(fits, keys, case: _Case):
     """A fitted model's predictive check and PSIS-LOO: ``(z, thresholds, coverage, elpd_i, global)``."""
-    joint = name.split("+")[0] == "strand_slip"
-    mean, var, _ = _model_curves(fits, keys, tests, joint)
+    mean, var, _ = _model_curves(fits, keys)
+    tests, n_runs = case.tests, case.n_runs
     n_params = sum(fits[k]["n_params"] for k in keys)
-    z, thr, coverage, glob = _check(likes, [mean[t] for t in tests], [var[t] for t in tests], config.alpha, n_params)
+    z, thr, coverage, glob = _check(case.likes, [mean[t] for t in tests], [var[t] for t in tests], case.config.alpha,
+                                    n_params)
     parts = {}
-    for key in keys:
-        e = loo(fits[key]["log_lik"]).pointwise
-        if joint:
-            ts = state_tests(tests)[key[1]]
-            for t, piece in zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])):
-                parts[t] = piece
-        else:
-            parts[key[1]] = e
+    for key in keys:  # a fit's pointwise ELPD, runs of its tests in order
+        ts = fits[key]["tests"]
+        e = fits[key]["loo"].pointwise
+        parts.update(zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])))
     return z, thr, coverage, np.concatenate([parts[t] for t in tests]), glob
 
 
@@ -114,8 +142,9 @@ def _explained(bands, tests, z_ref, glob_ref, z_new, glob_new) -> float:
 
 # --- the diagnosis -------------------------------------------------------------------------------
 
-def _compare(candidates, spec_of, fits_all, ref_check, bands, tests, likes, n_runs, config):
+def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
     """Check and rank candidate models against a reference model's check; ``(ranking, summaries, checks, kept)``."""
+    tests = case.tests
     z_ref, _, _, ref_i, glob_ref = ref_check
     ranking, summaries, checks, kept, laws = [], {}, {}, {}, {}
     for e in candidates:
@@ -123,7 +152,7 @@ def _compare(candidates, spec_of, fits_all, ref_check, bands, tests, likes, n_ru
         keys_fits, comparison = _choose_law(fits_all, name)
         kept[e] = keys_fits
         keys = sorted(keys_fits)
-        checks[e] = _check_model(name, keys_fits, keys, tests, likes, n_runs, config)
+        checks[e] = _check_model(keys_fits, keys, case)
         s = _summary(name, keys_fits, keys, checks[e], ref_i, bands, tests)
         s["explained"] = _explained(bands, tests, z_ref, glob_ref, checks[e][0], checks[e][4])
         if comparison is not None:
@@ -156,14 +185,16 @@ def _composable(primary: str) -> tuple:
     return ()
 
 
-def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: DiagnoseConfig = DiagnoseConfig(),
+def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: DiagnoseConfig = DiagnoseConfig(),
              progress: bool = True, effects=None, prior_path=None, store=None) -> dict:
     """Locate, name, model and show the physics a damper's recordings have and the model lacks.
 
     Parameters
     ----------
     damper : Damper
-    bench : BenchData
+    data : CleanBench
+        The recordings with their stored cleaning (:class:`sbcal.data.clean_bench.CleanBench`): every fit
+        is of the tests' kept runs.
     tests : sequence of str, optional
         Test labels (default: all of the damper's tests).
     seed : int
@@ -188,27 +219,26 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         ``settings`` (see ``docs/diagnose.md``); and ``curves`` (for :func:`curves_frame`).
     """
     t0 = time.perf_counter()
-    available = bench.tests(damper.name)
+    available = data.tests(damper.name)
     tests = list(available if tests is None else tests)
     for t in tests:
         if t not in available:
-            raise InputError(f"{bench.source}: damper {damper.name!r} has no test {t!r} (has: {', '.join(available)})")
+            raise InputError(f"{data.source}: damper {damper.name!r} has no test {t!r} (has: {', '.join(available)})")
     if not tests:
-        raise InputError(f"{bench.source}: no tests for damper {damper.name!r}")
+        raise InputError(f"{data.source}: no tests for damper {damper.name!r}")
     catalogue = list(EXTENSIONS if effects is None else effects)
     for e in catalogue:
         if e not in EXTENSIONS:
             raise InputError(f"unknown effect {e!r}; known: {', '.join(EXTENSIONS)}")
-    label = (lambda stage: f"diagnose {damper.name}: {stage}") if progress else (lambda stage: None)
-
     # 1-2. baseline and locate
-    jobs = _jobs("baseline", (), damper, bench, tests, seed, config, prior_path)
-    likes = [j.target for j in jobs]
-    fits = _run_fits(jobs, config, label("per-test fits"))
+    jobs = _jobs("baseline", (), damper=damper, data=data, tests=tests, seed=seed, config=config, prior_path=prior_path)
+    case = _Case(damper, data, tuple(tests), tuple(j.target for j in jobs), config, seed, prior_path, progress)
+    likes = case.likes
+    fits = _run_fits(jobs, config, case.label("per-test fits"))
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]
-    n_runs = {t: lk.y.shape[1] for t, lk in zip(tests, likes)}
-    base_check = _check_model("baseline", fits, base_keys, tests, likes, n_runs, config)
+    n_runs = case.n_runs
+    base_check = _check_model(fits, base_keys, case)
     z0, thr0, _, base_i, glob0 = base_check
     bands = _bands(tests, likes, z0, thr0)
     misfit = bool(bands) or glob0["p_value"] < config.global_alpha
@@ -218,13 +248,10 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
 
     # 3. name: refit the screened candidates
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
-    all_jobs = []
-    for e in candidates:
-        all_jobs += _jobs(e, (), damper, bench, tests, seed, config, prior_path)
-    if all_jobs:
-        fits.update(_run_fits(all_jobs, config, label(f"{len(candidates)} candidate extension(s)")))
-    ranking, summaries, checks, kept, laws = _compare(candidates, lambda e: e, fits, base_check, bands, tests,
-                                                      likes, n_runs, config)
+    if candidates:
+        fits.update(case.fit([(e, ()) for e in candidates], f"{len(candidates)} candidate extension(s)"))
+    ranking, summaries, checks, kept, laws = _compare(candidates, lambda e: e, fits, ref_check=base_check,
+                                                      bands=bands, case=case)
 
     # 4. verdict
     verdict = _decide(misfit, ranking, config) or "none"
@@ -245,15 +272,17 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     # 5. secondary: locate again on the verdict's model, refit what composes with it
     secondary = None
     if config.secondary and verdict in EXTENSIONS and _composable(verdict):
-        secondary = _secondary(verdict, shown_fits, checks[verdict], damper, bench, tests, likes, n_runs, config,
-                               seed, prior_path, label)
+        secondary = _secondary(verdict, shown_fits, checks[verdict], case)
 
+    parameters = _parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown else {}
+    curves = _curves(case, fits, base_keys, shown, shown_fits)
     if store is not None and verdict == "strand_slip":
-        _store_cables(damper, shown_fits, store, seed, laws.get("strand_slip"), tests)
+        _store_cables(damper, shown_fits, store=store, seed=seed, comparison=laws.get("strand_slip"))
 
     result = {
         "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict,
-        "bench": {"path": str(bench.source), "rows_sha256": rows_digest(bench, damper.name)},
+        "bench": {"path": str(data.source), "rows_sha256": rows_digest(data, damper.name),
+                  "removed_runs": {t: list(data.removed_runs(damper.name, t)) for t in tests}},
         "rule": (f"a misfit when a line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
                  f"{config.alpha:g} over all lines) or the residual as a whole exceeds chance (chi-square of the lines' "
                  f"normal scores, p < {config.global_alpha:g}); then the best extension if delta_elpd > "
@@ -263,7 +292,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         "ranking": ranking,
         "bands": [{k: b[k] for k in ("test", "quantity", "f_lo", "f_hi", "max_abs_z")} for b in bands],
         "global": glob0,
-        "parameters": _parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown else {},
+        "parameters": parameters,
         "law": laws.get("strand_slip"),
         "before": before,
         "after": after,
@@ -272,7 +301,7 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
         "residuals": {t: {"freq_hz": lk.freq_hz.tolist(), "z_before": zb.tolist(),
                           "z_after": (checks[shown][0][i] if shown else zb).tolist()}
                       for i, (t, lk, zb) in enumerate(zip(tests, likes, z0))},
-        "curves": _curves(tests, likes, fits, base_keys, shown, shown_fits),
+        "curves": curves,
         "statistics": statistics,
         "screen": screen,
         "settings": asdict(config),
@@ -282,14 +311,14 @@ def diagnose(damper: Damper, bench, tests=None, *, seed: int = 0, config: Diagno
     return result
 
 
-def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes, n_runs, config, seed, prior_path,
-               label) -> dict | None:
+def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None:
     """The second effect on top of the verdict's model (module docstring, step 5), or None."""
+    tests, likes, config = case.tests, case.likes, case.config
     z1, thr1, _, _, glob1 = primary_check
     bands1 = _bands(tests, likes, z1, thr1)
     misfit = bool(bands1) or glob1["p_value"] < config.global_alpha
     joint = primary == "strand_slip"
-    mean, var, _ = _model_curves(primary_fits, sorted(primary_fits), tests, joint)
+    mean, var, _ = _model_curves(primary_fits, sorted(primary_fits))
     sig = _signatures(tests, likes, [mean[t] for t in tests], [var[t] for t in tests], z1)
     options = _composable(primary)
     screen = _screen(sig, config, options)
@@ -305,14 +334,11 @@ def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes
     if not candidates:
         return out
     if joint:  # on top of the verdict's cable law only
-        config = replace(config, laws=(next(iter(primary_fits.values()))["law"],))
-    jobs = []
-    for e in candidates:
-        jobs += _jobs(primary, (e,), damper, bench, tests, seed, config, prior_path)
-    fits = _run_fits(jobs, config, label(f"secondary: {len(candidates)} candidate(s)"))
-    fits.update({k: v for k, v in primary_fits.items()})
-    ranking, summaries, checks, kept, _ = _compare(candidates, lambda e: _name(primary, (e,)), fits, primary_check,
-                                                   bands1, tests, likes, n_runs, config)
+        case = replace(case, config=replace(config, laws=(next(iter(primary_fits.values()))["law"],)))
+    fits = case.fit([(primary, (e,)) for e in candidates], f"secondary: {len(candidates)} candidate(s)")
+    fits.update(primary_fits)
+    ranking, summaries, checks, kept, _ = _compare(candidates, lambda e: _name(primary, (e,)), fits,
+                                                   ref_check=primary_check, bands=bands1, case=case)
     choice = _decide(True, ranking, config)
     out["ranking"] = ranking
     best = ranking[0]["effect"]
@@ -321,19 +347,20 @@ def _secondary(primary, primary_fits, primary_check, damper, bench, tests, likes
     if choice in options:
         out["effect"] = choice
         base_names = tuple(n for n in next(iter(primary_fits.values()))["names"])
-        out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names, tests)
+        out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names, each_test=True)
         out["residuals"] = {t: {"z_before": zb.tolist(), "z_after": za.tolist()}
                             for t, zb, za in zip(tests, z1, checks[choice][0])}
     return out
 
 
-def _curves(tests, likes, fits, base_keys, shown, shown_fits) -> dict:
+def _curves(case: _Case, fits, base_keys, shown, shown_fits) -> dict:
     """Posterior-median model curves per test of the baseline and the shown model (log-magnitude, phase)."""
+    tests, likes = case.tests, case.likes
     out = {}
-    _, _, base = _model_curves(fits, base_keys, tests, False)
+    _, _, base = _model_curves(fits, base_keys)
     models = {"baseline": base}
     if shown:
-        _, _, med = _model_curves(shown_fits, sorted(shown_fits), tests, shown == "strand_slip")
+        _, _, med = _model_curves(shown_fits, sorted(shown_fits))
         models[shown] = med
     for name, med in models.items():
         out[name] = {t: {"freq_hz": lk.freq_hz.tolist(), "amplitude_mm_pp": lk.amplitude_mm_pp.tolist(),
@@ -362,13 +389,11 @@ def curves_frame(doc: dict):
     return pd.concat(frames, ignore_index=True)
 
 
-def _store_cables(damper, fits, store, seed, comparison, tests) -> None:
+def _store_cables(damper, fits, *, store, seed, comparison) -> None:
     """Write the verdict's cable-law posteriors as ``<store>/<damper>/cable-<state>/``."""
-
-    groups = state_tests(tests)
     for (name, state), f in sorted(fits.items()):
-        fit = CableFit(damper=damper.name, state=state, law=f["law"], tests=tuple(groups[state]), effects=(),
-                       result=f["result"], like=f["like"], loo=loo(f["log_lik"]))
+        fit = CableFit(damper=damper.name, state=state, law=f["law"], tests=f["tests"], effects=(),
+                       result=f["result"], like=f["like"], loo=f["loo"])
         store_cable(fit, cable_dir(store, damper.name, state),
                     meta={"seed": seed, "made_by": "sbcal diagnose", "damper_values": asdict(damper)},
                     comparison=comparison)

@@ -9,15 +9,14 @@ import numpy as np
 
 from ..core.seeds import job_seed
 from ..core.workers import default_workers, one_blas_thread, run_jobs
-from ..data.cleaning import DEFAULT_Z_THRESHOLD, remove_outlier_runs
+from ..data.labels import state_tests
 from ..inference.cable_fit import (CableFit, cable_config, cable_likelihood, cable_seed, compare_families,
-                                   compared_laws, sample_cable, state_tests)
+                                   compared_laws, sample_cable)
 from ..inference.calibrate import likelihood_for
 from ..inference.likelihood import JointLikelihood
-from ..inference.priors import Prior, extension_prior
+from ..inference.priors import composed_prior
 from ..inference.sampler import SamplerConfig, sample
 from ..inference.stats import loo
-from ..model.damper import Damper
 from ..model.extensions import model_for
 from ..model.hysteresis import FITTED_LAWS
 
@@ -30,6 +29,8 @@ _QUANTITIES = ("magnitude", "phase")
 @dataclass(frozen=True)
 class DiagnoseConfig:
     """Settings of :func:`diagnose` (the defaults are what ``sbcal diagnose`` uses).
+
+    The outlier-run threshold is not among them: the diagnosis fits the runs the clean stage kept.
 
     Attributes
     ----------
@@ -62,25 +63,21 @@ class DiagnoseConfig:
         else are the engine's: :data:`sbcal.inference.sampler.POLICY`).
     workers : int
         Processes: fits run in parallel, one per process.
-    z_threshold : float
-        Outlier-run threshold of the cleaning (:func:`sbcal.data.cleaning.remove_outlier_runs`); the pipeline
-        sets it from its own settings, so every stage cleans alike.
     """
 
     alpha: float = 0.05
     global_alpha: float = 0.01
     clear_se: float = 4.0
     min_explained: float = 0.8
+    laws: tuple = FITTED_LAWS
     screen_t: float = 3.0
     screen_share: float = 0.05
     screen_corr: float = 0.3
-    laws: tuple = FITTED_LAWS
+    workers: int = field(default_factory=default_workers)
     secondary: bool = True
     draws: int = 250
     max_steps: int = 20000
     cable_max_steps: int = 8000
-    workers: int = field(default_factory=default_workers)
-    z_threshold: float = DEFAULT_Z_THRESHOLD
 
     def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
         if joint:  # the cable fit's own settings, capped as here
@@ -95,16 +92,7 @@ def _name(primary: str, secondary=()) -> str:
     return "+".join((primary,) + tuple(secondary))
 
 
-def _per_test_prior(primary: str, secondary, damper: Damper, prior_path) -> Prior:
-    prior = extension_prior(primary, damper, base_path=prior_path)
-    boxes = {n: prior.box(n) for n in prior.names}
-    for e in secondary:
-        ext = extension_prior(e, damper, base_path=prior_path)
-        boxes.update({n: ext.box(n) for n in ext.names if n not in boxes})
-    return Prior.from_boxes(_name(primary, secondary), boxes)
-
-
-def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) -> list:
+def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path) -> list:
     """Fit jobs of one model: one per test, or for strand slip one per cable state and law family.
 
     A job is a :class:`FitJob`: key ``(model name, test)`` or ``(model name, state, law)``; the stream
@@ -116,17 +104,16 @@ def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) ->
     if primary == "strand_slip":
         for state, members in sorted(state_tests(tests).items()):
             for law in compared_laws(config.laws, tests):
-                like = cable_likelihood(damper, bench, members, law, effects=secondary, prior_path=prior_path,
-                                        z_threshold=config.z_threshold)
-                jobs.append(((name, state, law), like, cable_seed(seed, damper.name, state, law, tuple(secondary))))
+                like = cable_likelihood(damper, data, members, law, effects=secondary, prior_path=prior_path)
+                stream = cable_seed(seed, damper.name, state, law, tuple(secondary))
+                jobs.append(FitJob((name, state, law), like, stream, config, tuple(members)))
     else:
-        prior = _per_test_prior(primary, secondary, damper, prior_path)
+        prior = composed_prior(primary, secondary, damper, base_path=prior_path)
         model = model_for(primary, secondary)
         for t in tests:
-            data = remove_outlier_runs(bench.test(damper.name, t), config.z_threshold).data
-            jobs.append(((name, t), likelihood_for(damper, data, prior, model=model),
-                         job_seed(seed, "diagnose", damper.name, name, t)))
-    return [FitJob(key, target, s, config) for key, target, s in jobs]
+            like = likelihood_for(damper, data.kept(damper.name, t), prior, model=model)
+            jobs.append(FitJob((name, t), like, job_seed(seed, "diagnose", damper.name, name, t), config, (t,)))
+    return jobs
 
 
 # --- fits ----------------------------------------------------------------------------------------
@@ -134,6 +121,8 @@ def _jobs(primary, secondary, damper, bench, tests, seed, config, prior_path) ->
 @dataclass(frozen=True)
 class FitJob:
     """One fit of the diagnosis (picklable: it travels to a worker process).
+
+    Built by :func:`_jobs` for one model, run by :func:`_fit`, read back by :func:`_posterior`.
 
     Attributes
     ----------
@@ -143,12 +132,15 @@ class FitJob:
     stream : numpy.random.SeedSequence
         The fit's own stream, keyed by what it is.
     config : DiagnoseConfig
+    tests : tuple of str
+        The tests the fit is of (one, or a cable state's).
     """
 
     key: tuple
     target: object
     stream: object
     config: DiagnoseConfig
+    tests: tuple
 
 
 def _fit(job: FitJob):
@@ -160,8 +152,10 @@ def _fit(job: FitJob):
         return sample(like, seed=job.stream, config=config.sampler(like.prior.ndim))
 
 
-def _posterior(like, res) -> dict:
-    """An engine result -> what the diagnosis needs: model curves, pointwise log-likelihood, convergence."""
+def _posterior(job: FitJob, res) -> dict:
+    """An engine result -> what the diagnosis needs: model curves per test (in ``tests``), pointwise
+    log-likelihood, convergence."""
+    like = job.target
     params = res.flat()
     joint = isinstance(like, JointLikelihood)
     mus = like.predict(params) if joint else [like.predict(params)]
@@ -175,14 +169,14 @@ def _posterior(like, res) -> dict:
         mu_median.append(np.median(d, axis=1))
     return dict(params=params, names=like.prior.names, log_lik=res.log_likelihood, mu_mean=mu_mean, mu_var=mu_var,
                 mu_median=mu_median, convergence=res.convergence_dict(), converged=res.converged,
-                result=res, like=like, n_params=like.prior.ndim)
+                result=res, like=like, n_params=like.prior.ndim, tests=job.tests, loo=loo(res.log_likelihood))
 
 
 def _run_fits(jobs, config, label) -> dict:
     """Run fits, ``config.workers`` at a time (the costly cable fits first); ``{key: fit}``."""
     jobs = sorted(jobs, key=lambda j: not isinstance(j.target, JointLikelihood))
     done = run_jobs(_fit, jobs, workers=config.workers, label=label, unit="fit")
-    return {job.key: _posterior(job.target, res) for job, res in zip(jobs, done)}
+    return {job.key: _posterior(job, res) for job, res in zip(jobs, done)}
 
 
 def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
@@ -194,7 +188,7 @@ def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
     by_law = {}
     for (_, state, law), f in cable.items():
         by_law.setdefault(law, {})[state] = CableFit(damper="", state=state, law=law, tests=(), effects=(),
-                                                     result=f["result"], like=f["like"], loo=loo(f["log_lik"]))
+                                                     result=f["result"], like=f["like"], loo=f["loo"])
     comparison = compare_families(by_law)
     for law in comparison["families"]:
         comparison["families"][law]["converged"] = all(cable[(name, s, law)]["converged"] for s in by_law[law])

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from ..inference.cable_fit import state_tests
+from ..data.labels import state_tests
 from ..model.extensions import EXTENSIONS
 from ..model.fem import arm_curvatures
 from .fits import _QUANTITIES, DiagnoseConfig
@@ -125,7 +125,7 @@ def _rocking_signature(fits, tests, likes, mean, var, h: float = 0.05) -> tuple[
         freq = np.concatenate([lk.freq_hz for lk in like.likes])
         lo, hi = (rocking(like.damper, freq, **med, rocking_rad_per_m=np.array([r]))[0] for r in (-h, h))
         d = np.log(hi / lo) / (2 * h)  # a ratio near 1: no phase wrap
-        for t, piece in zip(state_tests(tests)[state], np.split(d, np.cumsum([lk.freq_hz.size for lk in like.likes])[:-1])):
+        for t, piece in zip(fit["tests"], np.split(d, np.cumsum([lk.freq_hz.size for lk in like.likes])[:-1])):
             lk = likes[index[t]]
             r_all.append(lk.residual(mean[t][:, None, :])[:, 0].ravel())
             w_all.append((1.0 / (lk.sigma ** 2 / lk.n + var[t])).ravel())

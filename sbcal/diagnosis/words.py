@@ -3,9 +3,10 @@ their Birge ratio where they disagree), and the sentence that says what was foun
 
 from __future__ import annotations
 
+import string
+
 import numpy as np
 
-from ..inference.cable_fit import state_tests
 from ..inference.likelihood import JointLikelihood
 
 
@@ -68,11 +69,11 @@ def _test_estimates(fit: dict, name: str, tests) -> dict:
     return out
 
 
-def _parameters(effect: str, fits: dict, keys, baseline_names, tests=None) -> dict:
+def _parameters(effect: str, fits: dict, keys, baseline_names, *, each_test: bool = False) -> dict:
     """The extension's own parameters with 90 % intervals, and what they mean on the bench.
 
     A value shared by several tests or cable states comes with its ``scale_factor``
-    (:func:`_scale_factor` of the tests' or states' own estimates, ``tests`` naming a joint fit's tests;
+    (:func:`_scale_factor` of the tests' or states' own estimates, the tests' own with ``each_test``;
     in ``values`` the largest applied): where it exceeds 1 the interval is widened by it about the
     combined value, so that a model that fits some tests worse than others does not give a value more
     precisely than the tests agree on it."""
@@ -94,9 +95,9 @@ def _parameters(effect: str, fits: dict, keys, baseline_names, tests=None) -> di
         for key in keys:
             v = fits[key]["params"][n]
             per[key[1]] = {"mean": float(v.mean()), "sd": float(v.std()), **_quantiles(v)}
-            if tests is not None and isinstance(fits[key]["like"], JointLikelihood):
+            if each_test and isinstance(fits[key]["like"], JointLikelihood):
                 # one value for a cable state's tests: do the tests, each on its own, agree on it?
-                own_est = _test_estimates(fits[key], n, state_tests(tests)[key[1]])
+                own_est = _test_estimates(fits[key], n, fits[key]["tests"])
                 factor = _scale_factor(*zip(*own_est.values()))
                 per[key[1]].update(sd=per[key[1]]["sd"] * max(1.0, factor), scale_factor=factor,
                                    tests={t: e for t, (e, _) in own_est.items()})
@@ -111,8 +112,27 @@ def _parameters(effect: str, fits: dict, keys, baseline_names, tests=None) -> di
     return out
 
 
+# Each effect's finding in words; a {name} field is that parameter's median and 90 % interval in the unit
+# the sentence gives. strand_slip's is made in _words: it names its law and the stuck EJ.
+_FINDINGS = {
+    "sensor_delay": "phase lags grow linearly with frequency: a {delay_s} ms delay between the force and "
+                    "displacement channels (90 % interval)",
+    "fixture_mass": "the stiffness drops by omega^2 times {fixture_mass_kg} g: a mass on the table that the "
+                    "empty-table calibration did not cancel",
+    "viscous_damping": "the loss factor grows with frequency: a viscous part of {beta_viscous} at 10 Hz "
+                       "(proportional to f) on top of the hysteretic one",
+    "asymmetric_damping": "the arms damp differently: loss factor {beta1} on arm 1 (mass 1), {beta2} on arm 2",
+    "base_rocking": "the table rotates as it moves: {rocking_rad_per_m} mrad of tilt per mm of vertical motion",
+    "frequency_dependent_stiffness": "the cable's EJ changes with frequency as (f / 10 Hz)^s, s = {ej_exponent}: "
+                                     "a viscoelastic cable",
+}
+# Parameters said in another unit than they are fitted in (ms, g): (factor, format).
+_SHOWN_IN = {"delay_s": (1e3, "{:.3g}"), "fixture_mass_kg": (1e3, "{:.0f}")}
+
+
 def _words(effect: str, v: dict, law: str = "") -> str:
-    def iv(name, scale=1.0, fmt="{:.3g}"):
+    def iv(name):
+        scale, fmt = _SHOWN_IN.get(name, (1.0, "{:.3g}"))
         d = v[name]
         wide = (f" (widened {d['scale_factor']:.1f}x: the tests' own estimates disagree beyond their noise)"
                 if d.get("scale_factor", 1.0) > 1 else "")
@@ -120,26 +140,12 @@ def _words(effect: str, v: dict, law: str = "") -> str:
                 f"{fmt.format(d['q95'] * scale)}]{wide}")
     parts = []
     for e in effect.split("+"):
-        if e == "sensor_delay":
-            parts.append(f"phase lags grow linearly with frequency: a {iv('delay_s', 1e3)} ms delay between the force "
-                         "and displacement channels (90 % interval)")
-        elif e == "fixture_mass":
-            parts.append(f"the stiffness drops by omega^2 times {iv('fixture_mass_kg', 1e3, '{:.0f}')} g: a mass on "
-                         "the table that the empty-table calibration did not cancel")
-        elif e == "viscous_damping":
-            parts.append(f"the loss factor grows with frequency: a viscous part of {iv('beta_viscous')} at 10 Hz "
-                         "(proportional to f) on top of the hysteretic one")
-        elif e == "asymmetric_damping":
-            parts.append(f"the arms damp differently: loss factor {iv('beta1')} on arm 1 (mass 1), {iv('beta2')} on arm 2")
-        elif e == "base_rocking":
-            parts.append(f"the table rotates as it moves: {iv('rocking_rad_per_m')} mrad of tilt per mm of vertical "
-                         "motion")
-        elif e == "frequency_dependent_stiffness":
-            parts.append(f"the cable's EJ changes with frequency as (f / 10 Hz)^s, s = {iv('ej_exponent')}: "
-                         "a viscoelastic cable")
-        elif e == "strand_slip":
+        if e == "strand_slip":
             stuck = {k: v["EJ_min"][k] + v["delta_EJ"][k] for k in ("median", "q05", "q95")}
             parts.append(f"the cable's wires slip with curvature ({law} law, one law for every amplitude): EJ "
                          f"{stuck['median']:.3g} N m^2 when stuck, falling towards {iv('EJ_min')} N m^2 in full slip, "
                          f"with friction loss on top of the loss factor {iv('beta_material')} of the strand itself")
+        elif e in _FINDINGS:
+            text = _FINDINGS[e]
+            parts.append(text.format(**{n: iv(n) for _, n, _, _ in string.Formatter().parse(text) if n}))
     return "; ".join(parts)

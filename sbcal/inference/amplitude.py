@@ -94,8 +94,24 @@ def _law_mean(law, a, p):
     return np.log(col["EJ_inf"] + col["c"] * a ** (-col["n"]))
 
 
-class _LawTarget:
-    """Log-posterior of a law's parameters given test points: the engine's target (picklable, vectorised)."""
+class _Target:
+    """The engine's target (picklable, vectorised): the log prior plus ``log_likelihood`` of the parameters
+    by name; -inf outside the prior's support and where the likelihood is not finite. A subclass sets
+    ``prior`` and defines ``log_likelihood(params) -> (n,)``."""
+
+    def __call__(self, z):
+        z = np.atleast_2d(z)
+        out = self.prior.log_prob(z)
+        ok = np.isfinite(out)
+        if ok.any():
+            with np.errstate(all="ignore"):
+                lp = self.log_likelihood(self.prior.params(z[ok]))
+            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
+        return out
+
+
+class _LawTarget(_Target):
+    """Log-posterior of a law's parameters given test points."""
 
     def __init__(self, law, a, m, s, prior):
         self.law, self.a, self.m, self.s, self.prior = law, a, m, s, prior
@@ -105,15 +121,8 @@ class _LawTarget:
         var = self.s**2 + np.asarray(params["scatter"], float)[:, None] ** 2
         return -0.5 * ((self.m - mu) ** 2 / var + np.log(2 * np.pi * var))
 
-    def __call__(self, z):
-        z = np.atleast_2d(z)
-        out = self.prior.log_prob(z)
-        ok = np.isfinite(out)
-        if ok.any():
-            with np.errstate(all="ignore"):
-                lp = self.pointwise_log_likelihood(self.prior.params(z[ok])).sum(axis=1)
-            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
-        return out
+    def log_likelihood(self, params):
+        return self.pointwise_log_likelihood(params).sum(axis=1)
 
 
 @dataclass(frozen=True)
@@ -399,7 +408,7 @@ def _per_test(name: str, test: str) -> str:
 _PER_TEST = ("beta", "sigma_mag", "sigma_phase")
 
 
-class _JointTarget:
+class _JointTarget(_Target):
     """All constant-amplitude tests of a damper at once: ``EJ_i = k A_i^-n``, shared a1, a2, and a
     loss factor and model-error scales per test (``beta[<test>]`` ...): the engine's target. Each
     test's likelihood gets its parameters by name."""
@@ -420,25 +429,16 @@ class _JointTarget:
         return np.concatenate([like.pointwise_log_likelihood(self._test_params(p, i))
                                for i, like in enumerate(self.likes)], axis=1)
 
-    def __call__(self, z):
-        z = np.atleast_2d(z)
-        out = self.prior.log_prob(z)
-        ok = np.isfinite(out)
-        if ok.any():
-            with np.errstate(all="ignore"):
-                lp = self.log_likelihood(self.prior.params(z[ok]))
-            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
-        return out
 
-
-def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config: SamplerConfig | None = None,
+def joint_powerlaw(damper, data, tests, *, seed: int, start=None, config: SamplerConfig | None = None,
                    progress=None) -> dict:
     """One posterior over all given tests of a damper with EJ on the power law (k, n sampled).
 
     Parameters
     ----------
     damper : Damper
-    bench : BenchData
+    data : CleanBench
+        The cleaned recordings (:class:`sbcal.data.clean_bench.CleanBench`); each test's kept runs enter.
     tests : sequence of str
         Constant-amplitude tests (3 or more amplitudes).
     seed : int
@@ -459,8 +459,8 @@ def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config: Sampl
     config = config or SamplerConfig(nwalkers=32)
     likes, amps = [], []
     for t in tests:
-        like, cleaned = test_likelihood(damper, bench, t)
-        amp = np.unique(cleaned.data.amplitude_mm_pp)
+        like = test_likelihood(damper, data, t)
+        amp = np.unique(like.amplitude_mm_pp)
         if amp.size != 1:
             raise InputError(f"test {t!r} has no single amplitude: keep it out of the joint fit")
         likes.append(like)
@@ -493,7 +493,7 @@ def joint_powerlaw(damper, bench, tests, *, seed: int, start=None, config: Sampl
     }
 
 
-def joint_from_runs(damper, bench, runs_dir, two_stage: dict, paramset: str = "theta1", *, seed: int = 0,
+def joint_from_runs(damper, data, runs_dir, two_stage: dict, paramset: str = "theta1", *, seed: int = 0,
                     progress=None) -> dict:
     """:func:`joint_powerlaw` over the tests of a two-stage map (``two_stage`` = its document),
     started from its fit and the stored per-test posteriors; adds a comparison with the two-stage k, n."""
@@ -509,7 +509,7 @@ def joint_from_runs(damper, bench, runs_dir, two_stage: dict, paramset: str = "t
             for key in ("beta", "sigma_mag", "sigma_phase"):
                 if key in s["parameters"]:
                     start[key][t] = s["parameters"][key]["median"]
-    joint = joint_powerlaw(damper, bench, tests, seed=seed, start=start, progress=progress)
+    joint = joint_powerlaw(damper, data, tests, seed=seed, start=start, progress=progress)
     two = two_stage["powerlaw"]
     overlap = all(joint[p][1] <= two[p][2] and two[p][1] <= joint[p][2] for p in ("k", "n"))
     joint["comparison"] = (

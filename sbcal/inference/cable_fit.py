@@ -20,6 +20,7 @@ Stored as ``<runs>/<damper>/cable-<state>/posterior.nc`` + ``summary.json`` (:fu
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,8 +30,7 @@ from scipy.stats import qmc
 
 from ..core.errors import InputError
 from ..core.seeds import job_seed, seed_key
-from ..data.cleaning import remove_outlier_runs
-from ..data.labels import cable_state
+from ..data.labels import cable_state, state_tests
 from ..model.cable import DEFAULT_SECTIONS, CableModel
 from ..model.damper import Damper
 from ..model.hysteresis import FITTED_LAWS, law_for
@@ -41,20 +41,12 @@ from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
 
 
-__all__ = ["SECONDARY", "state_tests", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
+__all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
            "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
 their parameters."""
-
-def state_tests(tests) -> dict:
-    """``{state: [tests]}`` in the order the tests come."""
-    out = {}
-    for t in tests:
-        out.setdefault(cable_state(t), []).append(t)
-    return out
-
 
 def compared_laws(laws, tests) -> tuple:
     """The families of ``laws`` a comparison over ``tests`` uses: those with their ``min_tests`` in every
@@ -139,9 +131,9 @@ def _prior(law: str, damper: Damper, effects, prior_path=None) -> Prior:
     return Prior.from_boxes(name, boxes)
 
 
-def cable_likelihood(damper: Damper, bench, tests, law: str, *, effects=(), prior_path=None,
-                     z_threshold=None) -> JointLikelihood:
-    """The joint noise-only likelihood of one cable state's tests under a law family."""
+def cable_likelihood(damper: Damper, data, tests, law: str, *, effects=(), prior_path=None) -> JointLikelihood:
+    """The joint noise-only likelihood of one cable state's tests (their kept runs in ``data``, a
+    :class:`sbcal.data.clean_bench.CleanBench`) under a law family."""
     tests = list(tests)
     states = {cable_state(t) for t in tests}
     if len(states) != 1:
@@ -149,9 +141,7 @@ def cable_likelihood(damper: Damper, bench, tests, law: str, *, effects=(), prio
     prior = _prior(law, damper, tuple(effects), prior_path)
     likes = []
     for t in tests:
-        td = bench.test(damper.name, t)
-        cleaned = remove_outlier_runs(td) if z_threshold is None else remove_outlier_runs(td, z_threshold)
-        likes.append(likelihood_for(damper, cleaned.data, prior))
+        likes.append(likelihood_for(damper, data.kept(damper.name, t), prior))
     amp = np.concatenate([lk.amplitude_mm_pp for lk in likes])
     seg = np.concatenate([np.full(lk.freq_hz.size, i) for i, lk in enumerate(likes)])
     return JointLikelihood(likes, prior, CableForward(law, amp, seg, tuple(effects)))
@@ -299,7 +289,7 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
     return sample(like, seed=s_sample, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
 
 
-def fit_cable(damper: Damper, bench, tests, law: str, *, seed: int, effects=(), workers: int = 2,
+def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), workers: int = 2,
               max_steps: int = 8000, max_draws: int = 250, start=None, prior_path=None,
               progress: str | None = None) -> CableFit:
     """Sample one cable state's law (see the module docstring).
@@ -307,7 +297,8 @@ def fit_cable(damper: Damper, bench, tests, law: str, *, seed: int, effects=(), 
     Parameters
     ----------
     damper : Damper
-    bench : BenchData
+    data : CleanBench
+        The recordings with their stored cleaning (:class:`sbcal.data.clean_bench.CleanBench`).
     tests : sequence of str
         The tests of one cable state.
     law : str
@@ -325,7 +316,7 @@ def fit_cable(damper: Damper, bench, tests, law: str, *, seed: int, effects=(), 
     progress : str, optional
     """
     tests = tuple(tests)
-    like = cable_likelihood(damper, bench, tests, law, effects=effects, prior_path=prior_path)
+    like = cable_likelihood(damper, data, tests, law, effects=effects, prior_path=prior_path)
     state = cable_state(tests[0])
     config = cable_config(like.prior.ndim, workers=workers, max_steps=max_steps, max_draws=max_draws)
     res = sample_cable(like, seed=cable_seed(seed, damper.name, state, law, tuple(effects)), config=config,
@@ -378,13 +369,39 @@ def _curvature_ranges(fit: CableFit) -> dict:
     return out
 
 
+_RESIDUAL_DRAWS = 50  # posterior draws behind the median model curve of the residual scale
+
+
+def _residual_scale(fit: CableFit) -> dict:
+    """The calibration's residual scale: per calibrated amplitude [mm p-p], the rms over its lines of the
+    run means about the median model curve of :data:`_RESIDUAL_DRAWS` posterior draws (the fit's own
+    model: its damper, lines, sweeps and effects), in ln|f| [1] and in phase [deg]. ``sbcal predict``
+    adds it to its bands (:func:`sbcal.design.predict.model_error_of`)."""
+    like, draws = fit.like, fit.result.flat()
+    n = fit.result.log_prob.size
+    # the subset predict drew with its default seed when it computed this itself: the same numbers
+    rng = np.random.default_rng(np.random.SeedSequence(0).spawn(2)[0])
+    idx = np.arange(n) if _RESIDUAL_DRAWS >= n else np.sort(rng.choice(n, size=_RESIDUAL_DRAWS, replace=False))
+    _, fm = like.model.state(like.damper, like.freq_hz, continuation=True, **{k: v[idx] for k, v in draws.items()})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a line no draw solved stays NaN
+        mu = np.stack([np.nanmedian(np.log(np.abs(fm)), axis=0), np.nanmedian(np.angle(fm), axis=0)])
+    r = np.concatenate([lk.ybar for lk in like.likes], axis=1) - mu
+    r[1] = np.remainder(r[1] + np.pi, 2 * np.pi) - np.pi
+    amp = np.asarray(like.model.amplitude_mm_pp, float)
+    levels = np.unique(amp)
+    sd = np.array([[np.sqrt(np.nanmean(r[q, amp == a] ** 2)) for a in levels] for q in (0, 1)])
+    return {"amplitude_mm_pp": levels.tolist(), "logmag_sd": sd[0].tolist(), "phase_sd_deg": np.degrees(sd[1]).tolist()}
+
+
 def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None) -> dict:
     """Write ``posterior.nc`` + ``summary.json`` of a cable fit into ``directory``; returns the summary.
 
     The netCDF holds the posterior, the log-probability, the pointwise log-likelihood by run
     (``runs``, dim ``obs`` with ``obs_test``/``obs_run`` coordinates), the lines (frequency, amplitude,
     test) and the run means observed. The summary adds the law, the tests, each test's curvature range
-    and folds, the convergence and (with ``comparison``) the family comparison.
+    and folds, the residual scale (``residual_scale``: :func:`_residual_scale`), the convergence and
+    (with ``comparison``) the family comparison.
     """
     from ..core._io import write_json
     from .runs import parameter_summary, versions, write_inference_data
@@ -399,6 +416,7 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "tests": list(fit.tests), "parameters": parameter_summary(res), **res.convergence_dict(),
         "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
         "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
+        "residual_scale": _residual_scale(fit),
         "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
         "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
     }
@@ -429,12 +447,12 @@ def read_cable(directory) -> tuple[dict, dict]:
     return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
 
 
-def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=None, seed=0, prior_path=None,
+def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, prior_path=None,
                      workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
     """Every cable state of a damper under every family (default: :func:`compared_laws` of
     :data:`FITTED_LAWS`); ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of
     :func:`compare_families`."""
-    tests = list(bench.tests(damper.name) if tests is None else tests)
+    tests = list(data.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
     laws = compared_laws(FITTED_LAWS, tests) if laws is None else tuple(laws)
     fits = {}
@@ -442,7 +460,7 @@ def fit_damper_cable(damper: Damper, bench, tests=None, *, laws=None, seed=0, pr
         fits[law] = {}
         for state, members in sorted(groups.items()):
             label = f"{damper.name} cable {state} ({law})" if progress else None
-            fits[law][state] = fit_cable(damper, bench, members, law, seed=seed, prior_path=prior_path, progress=label,
+            fits[law][state] = fit_cable(damper, data, members, law, seed=seed, prior_path=prior_path, progress=label,
                                          workers=workers)
     return fits, compare_families(fits)
 

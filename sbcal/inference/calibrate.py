@@ -11,7 +11,6 @@ import numpy as np
 
 from ..core._io import write_json
 from ..core.seeds import job_seed, seed_key
-from ..data.cleaning import DEFAULT_Z_THRESHOLD, remove_outlier_runs
 from ..data.noise import noise_model
 from ..model.damper import Damper
 from .likelihood import TestLikelihood
@@ -46,27 +45,24 @@ def likelihood_for(damper: Damper, data, prior, *, model=None, fixed=None) -> Te
                           model=model, amplitude_mm_pp=data.amplitude_mm_pp)
 
 
-def test_likelihood(damper: Damper, bench, test: str, paramset: str = "theta1", prior_path=None,
-                    z_threshold=None, model=None, fixed=None):
-    """Build the likelihood of one test's cleaned runs.
-
-    Returns ``(like, cleaned)`` where ``cleaned`` is the :class:`sbcal.data.cleaning.CleanedTest`.
-    """
-    td = bench.test(damper.name, test)
-    cleaned = remove_outlier_runs(td, DEFAULT_Z_THRESHOLD if z_threshold is None else z_threshold)
-    like = likelihood_for(damper, cleaned.data, load_prior(paramset, damper, prior_path), model=model, fixed=fixed)
-    return like, cleaned
+def test_likelihood(damper: Damper, data, test: str, *, paramset: str = "theta1", prior_path=None, model=None,
+                    fixed=None) -> TestLikelihood:
+    """The likelihood of one test's kept runs (``data``: a :class:`sbcal.data.clean_bench.CleanBench`)."""
+    return likelihood_for(damper, data.kept(damper.name, test), load_prior(paramset, damper, prior_path), model=model,
+                          fixed=fixed)
 
 
-def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
-                   config: SamplerConfig = SamplerConfig(), prior_path=None, z_threshold=None,
-                   progress: bool = True, command: str = "", inputs: dict | None = None) -> dict:
+def calibrate_test(damper: Damper, data, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
+                   config: SamplerConfig = SamplerConfig(), prior_path=None, progress: bool = True,
+                   command: str = "", inputs: dict | None = None) -> dict:
     """Sample one test's posterior and store it under ``out``; returns the summary.
 
     Parameters
     ----------
     damper : Damper
-    bench : BenchData
+    data : CleanBench
+        The recordings with their stored cleaning (:class:`sbcal.data.clean_bench.CleanBench`): the
+        test's kept runs are sampled.
     test : str
         Test label (e.g. ``"0.5-0.5"``).
     paramset : str
@@ -78,8 +74,6 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
         Root of the run store (``<out>/<damper>/<test>/<paramset>/``).
     config : SamplerConfig
     prior_path : path-like, optional
-    z_threshold : float, optional
-        Outlier-run threshold (default: the loader's).
     progress : bool
     command : str
         The command line, kept for provenance.
@@ -87,7 +81,7 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
         Digests of what the run is made from (:func:`sbcal.pipeline.sample_inputs`), stored in
         ``summary.json`` so that a later run can tell whether it is still fresh.
     """
-    like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path, z_threshold)
+    like = test_likelihood(damper, data, test, paramset=paramset, prior_path=prior_path)
     label = f"{damper.name}/{test}/{paramset}"
     key = ("sample", damper.name, test)
     s_point, s_sample, s_predictive = job_seed(seed, *key).spawn(3)
@@ -95,9 +89,10 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
                             generations=POINT_FIT_GENERATIONS)
     result = sample(like, seed=s_sample, config=config, progress=label if progress else None)
     meta = {"damper": damper.name, "damper_source": damper.source, "test": test, "paramset": paramset,
-            "bench": bench.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
+            "bench": data.source, "prior": like.prior.as_dict(), "sampler": asdict(config),
             "command": command, "damper_values": asdict(damper)}
-    idata = to_inference_data(result, like, runs=cleaned.data.runs, removed_runs=cleaned.removed_runs,
+    idata = to_inference_data(result, like, runs=data.kept(damper.name, test).runs,
+                              removed_runs=data.removed_runs(damper.name, test),
                               seed=seed, seed_key=seed_key(*key), rng=np.random.default_rng(s_predictive), meta=meta)
     summary = summarize(idata, result, point_fit=point.as_dict())
     if inputs is not None:
@@ -106,15 +101,15 @@ def calibrate_test(damper: Damper, bench, test: str, *, paramset: str = "theta1"
     return summary
 
 
-def point_fit_test(damper: Damper, bench, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
+def point_fit_test(damper: Damper, data, test: str, *, paramset: str = "theta1", seed: int = 0, out="runs",
                    population: int = 500, generations: int = 500, prior_path=None) -> dict:
     """The thesis's workflow (GA point fit, here differential evolution) on one test; writes ``ga.json``."""
-    like, cleaned = test_likelihood(damper, bench, test, paramset, prior_path)
+    like = test_likelihood(damper, data, test, paramset=paramset, prior_path=prior_path)
     key = ("point_fit", damper.name, test)
     fit = fit_thesis_cost(like, seed=np.random.default_rng(job_seed(seed, *key)), population=population,
                           generations=generations)
     doc = {"damper": damper.name, "test": test, "paramset": paramset, "seed": seed, "seed_key": seed_key(*key),
-           "removed_runs": list(cleaned.removed_runs), "versions": versions(), **fit.as_dict()}
+           "removed_runs": list(data.removed_runs(damper.name, test)), "versions": versions(), **fit.as_dict()}
     path = point_fit_path(out, damper.name, test, paramset)
     write_json(path, doc, indent=2, sort_keys=True)
     return doc

@@ -21,7 +21,8 @@ from ..model.damper import Damper
 from ..model.fem import PARAMETER_NAMES
 
 
-__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "cable_prior"]
+__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "composed_prior",
+           "cable_prior"]
 
 _DISTS = ("uniform", "loguniform")
 _MODEL_ERROR = ("sigma_mag", "sigma_phase")
@@ -267,6 +268,17 @@ def extension_prior(effect: str, damper: Damper, path=None, base_path=None, *, b
             raise InputError(f"{src}: key '{effect}.parameters.{n}': also a base parameter")
         boxes[n] = _bounds(src, f"{effect}.parameters.{n}", box, n, damper)
     return Prior.from_boxes(effect, boxes)
+
+
+def composed_prior(primary: str, secondary, damper: Damper, *, base_path=None) -> Prior:
+    """The prior of a catalogue effect (or ``"baseline"``) with ``secondary`` effects on top: the
+    primary's boxes and each secondary's own parameters; named ``primary+secondary...``."""
+    prior = extension_prior(primary, damper, base_path=base_path)
+    boxes = {n: prior.box(n) for n in prior.names}
+    for e in secondary:
+        ext = extension_prior(e, damper, base_path=base_path)
+        boxes.update({n: ext.box(n) for n in ext.names if n not in boxes})
+    return Prior.from_boxes("+".join((primary,) + tuple(secondary)), boxes)
 
 
 def cable_prior(law: str, damper: Damper, path=None, base_path=None) -> Prior:

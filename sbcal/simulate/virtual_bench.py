@@ -58,6 +58,7 @@ __all__ = [
     "FixtureResonance",
     "BenchConfig",
     "parse_effect",
+    "finite_number",
     "test_amplitude",
     "response",
     "record",
@@ -195,13 +196,26 @@ _KEYED = {
 }
 
 
-def _number(spec: str, text: str) -> float:
+def finite_number(text: str, what: str) -> float:
+    """``text`` as a finite float (an effect's value here, a ``--set`` value on the command line).
+
+    Parameters
+    ----------
+    text : str
+    what : str
+        Where it was given, the start of the error, e.g. ``"effect 'sensor_delay=x'"``.
+
+    Raises
+    ------
+    InputError
+        One line: ``text`` is not a number, or not finite.
+    """
     try:
         x = float(text)
     except ValueError:
-        raise InputError(f"effect {spec!r}: {text!r} is not a number") from None
+        raise InputError(f"{what}: {text!r} is not a number") from None
     if not math.isfinite(x):
-        raise InputError(f"effect {spec!r}: value is not finite")
+        raise InputError(f"{what}: value is not finite")
     return x
 
 
@@ -234,21 +248,21 @@ def parse_effect(spec: str):
         cls, first, keys = _KEYED[name]
         kwargs = {}
         if ":" not in value:
-            kwargs[first] = _number(spec, value)
+            kwargs[first] = finite_number(value, f"effect {spec!r}")
         else:
             for item in value.split(","):
                 key, colon, text = item.partition(":")
                 key = key.strip()
                 if not colon or key not in keys:
                     raise InputError(f"effect {spec!r}: expected key:value pairs with keys {', '.join(keys)}")
-                kwargs[keys[key]] = _number(spec, text)
+                kwargs[keys[key]] = finite_number(text, f"effect {spec!r}")
             if first not in kwargs:
                 raise InputError(f"effect {spec!r}: {first} is required")
         try:
             return name, cls(**kwargs)
         except InputError as e:
             raise InputError(f"effect {spec!r}: {str(e).removeprefix(name + ': ')}") from None
-    x = _number(spec, value)
+    x = finite_number(value, f"effect {spec!r}")
     if name in ("fixture_mass", "sensor_delay") and x < 0:
         raise InputError(f"effect {spec!r}: must be >= 0")
     if name == "viscous_damping" and x <= 0:
@@ -260,7 +274,7 @@ def _parse_slip(spec: str, value: str) -> SlipLaw:
     """``CHI`` (the default law's curvature scale) or ``law:NAME,elements:N,PARAM:VALUE,...``."""
     try:
         if ":" not in value:
-            return SlipLaw(params=((_LAW_SCALE[SlipLaw.law], _number(spec, value)),))
+            return SlipLaw(params=((_LAW_SCALE[SlipLaw.law], finite_number(value, f"effect {spec!r}")),))
         law, elements, params = SlipLaw.law, BENCH_ELEMENTS, {}
         for item in value.split(","):
             key, colon, text = (t.strip() for t in item.partition(":"))
@@ -269,9 +283,9 @@ def _parse_slip(spec: str, value: str) -> SlipLaw:
             if key == "law":
                 law = text
             elif key == "elements":
-                elements = _number(spec, text)
+                elements = finite_number(text, f"effect {spec!r}")
             else:
-                params[key] = _number(spec, text)
+                params[key] = finite_number(text, f"effect {spec!r}")
         return SlipLaw(law=law, params=tuple(params.items()), elements=elements)
     except InputError as e:
         text = str(e)
