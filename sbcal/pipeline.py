@@ -159,7 +159,7 @@ def executor_for(scheduler: str | None = None):
 
 # --- stages --------------------------------------------------------------------------------
 
-def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict, str]:
+def clean_damper(bench, damper: Damper, *, store, settings: Settings) -> tuple[dict, str]:
     """Stage 1: per-test cleaning and quality of one damper -> ``<store>/<damper>/data.json``.
 
     Returns ``(doc, status)``.
@@ -181,12 +181,12 @@ def clean_damper(bench, damper: Damper, store, settings: Settings) -> tuple[dict
     return doc, f"redone ({_why(why)})"
 
 
-def clean(bench, dampers, store, settings: Settings, *, say=None) -> CleanBench:
+def clean(bench, dampers, *, store, settings: Settings, say=None) -> CleanBench:
     """Stage 1 for every damper (:func:`clean_damper`, reused where fresh), and the cleaned bench that
     every later stage reads: the stored decisions, not a new cleaning. ``say`` gets one line per damper."""
     removed = {}
     for damper in dampers:
-        doc, status = clean_damper(bench, damper, store, settings)
+        doc, status = clean_damper(bench, damper, store=store, settings=settings)
         if say is not None:
             say(f"{damper.name}: clean: {status}")
         stored = CleanBench.from_stored(bench, {damper.name: doc["tests"]}, z_threshold=settings.z_threshold,
@@ -211,7 +211,7 @@ def _read_json(path: Path) -> dict | None:
         raise InputError(f"{path}: not valid JSON ({e.msg}, line {e.lineno})") from None
 
 
-def sample_inputs(data, damper: Damper, test: str, settings: Settings) -> dict:
+def sample_inputs(data, damper: Damper, *, test: str, settings: Settings) -> dict:
     """What a test's posterior is made from (stored as its ``inputs``)."""
     sampler = {k: v for k, v in asdict(settings.sampler).items() if k != "workers"}
     return {"bench_rows": rows_digest(data, damper.name, test), "damper": _damper_digest(damper),
@@ -256,7 +256,7 @@ def _sample_job(job: SampleJob):
                               command=job.command, inputs=job.inputs)
 
 
-def sample_tests(data: CleanBench, work, store, settings: Settings, *, executor=None, command: str = "",
+def sample_tests(data: CleanBench, work, *, store, settings: Settings, executor=None, command: str = "",
                  reuse: bool = True, progress: bool = True) -> dict:
     """Stage 2: the posterior of every ``(damper, test)`` in ``work`` (reused where fresh), from the kept
     runs of the cleaned bench ``data`` (:func:`clean`).
@@ -269,7 +269,7 @@ def sample_tests(data: CleanBench, work, store, settings: Settings, *, executor=
 
     out, jobs = {}, []
     for damper, t in work:
-        inputs = sample_inputs(data, damper, t, settings)
+        inputs = sample_inputs(data, damper, test=t, settings=settings)
         stored = read_summary(run_dir(store, damper.name, t, settings.paramset))
         why = changed(stored, inputs)
         if reuse and not why:
@@ -285,7 +285,7 @@ def sample_tests(data: CleanBench, work, store, settings: Settings, *, executor=
     return out
 
 
-def diagnose_inputs(data: CleanBench, damper: Damper, settings: Settings) -> dict:
+def diagnose_inputs(data: CleanBench, damper: Damper, *, settings: Settings) -> dict:
     """What a damper's diagnosis is made from (stored as its ``inputs``)."""
     diag = {k: v for k, v in asdict(settings.diagnose).items() if k != "workers"}
     diag["z_threshold"] = settings.z_threshold
@@ -307,7 +307,7 @@ def _diagnose_job(job: DiagnoseJob):
     return doc
 
 
-def diagnose_dampers(data: CleanBench, dampers, store, settings: Settings, *, executor=None, command: str = "",
+def diagnose_dampers(data: CleanBench, dampers, *, store, settings: Settings, executor=None, command: str = "",
                      reuse: bool = True, progress: bool = True) -> dict:
     """Stage 3: the diagnosis of every damper (reused where fresh) -> ``<store>/<damper>/diagnose.json``.
 
@@ -316,7 +316,7 @@ def diagnose_dampers(data: CleanBench, dampers, store, settings: Settings, *, ex
     """
     out, jobs = {}, []
     for damper in dampers:
-        inputs = diagnose_inputs(data, damper, settings)
+        inputs = diagnose_inputs(data, damper, settings=settings)
         stored = _read_json(diagnose_path(store, damper.name))
         why = changed(stored, inputs)
         if reuse and not why:
@@ -331,7 +331,7 @@ def diagnose_dampers(data: CleanBench, dampers, store, settings: Settings, *, ex
     return out
 
 
-def map_damper(store, damper: str, settings: Settings, *, include_oiled: bool = False,
+def map_damper(store, damper: str, *, settings: Settings, include_oiled: bool = False,
                reuse: bool = True) -> tuple[dict | None, str]:
     """Stage 4: the amplitude map of one damper from its stored posteriors -> ``map.json`` + ``map.nc``.
 
@@ -343,7 +343,7 @@ def map_damper(store, damper: str, settings: Settings, *, include_oiled: bool = 
                           reuse=reuse)
 
 
-def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None, command: str = "",
+def run(bench, dampers, *, store, report_dir, settings: Settings, executor=None, command: str = "",
         progress: bool = True, say=print, until: str = "report") -> Path | None:
     """The whole job for ``dampers``, stage after stage, reusing what is fresh; returns the report path.
 
@@ -354,23 +354,23 @@ def run(bench, dampers, store, report_dir, settings: Settings, *, executor=None,
 
     if until not in STAGES:
         raise InputError(f"until: expected one of {', '.join(STAGES)}, got {until!r}")
-    data = clean(bench, dampers, store, settings, say=say)
+    data = clean(bench, dampers, store=store, settings=settings, say=say)
     if until == "clean":
         return None
     work = [(d, t) for d in dampers for t in data.tests(d.name)]
-    for (name, t), (summary, status) in sample_tests(data, work, store, settings, executor=executor,
+    for (name, t), (summary, status) in sample_tests(data, work, store=store, settings=settings, executor=executor,
                                                      command=command, progress=progress).items():
         flag = "" if summary is None or summary.get("converged") else f"; NOT CONVERGED ({summary.get('reason')})"
         say(f"{name}: sample {t}: {status}{flag}")
     if until == "sample":
         return None
-    for name, (doc, status) in diagnose_dampers(data, dampers, store, settings, executor=executor,
+    for name, (doc, status) in diagnose_dampers(data, dampers, store=store, settings=settings, executor=executor,
                                                 command=command, progress=progress).items():
         say(f"{name}: diagnose: {status}; verdict {doc['verdict']}")
     if until == "diagnose":
         return None
     for damper in dampers:
-        doc, status = map_damper(store, damper.name, settings)
+        doc, status = map_damper(store, damper.name, settings=settings)
         say(f"{damper.name}: map: {status}" + ("" if doc is None else f"; preferred {doc['preferred']}"
                                                 + ("" if doc["converged"] else "; NOT CONVERGED")))
     if until == "map":

@@ -289,7 +289,7 @@ def test_diagnose_fits_the_runs_the_clean_stage_stored(tmp_path):
     assert remove_outlier_runs(bench.test("damper1", "0.5-0.5")).removed_runs == (3,)
     for z, kept in ((3.0, 5), (1e9, 6)):
         settings = Settings(z_threshold=z)
-        data = clean(bench, [d], tmp_path / f"runs{z:g}", settings)
+        data = clean(bench, [d], store=tmp_path / f"runs{z:g}", settings=settings)
         assert json.loads((tmp_path / f"runs{z:g}" / "damper1" / "data.json").read_text())["tests"]["0.5-0.5"][
             "removed_runs"] == ([3] if kept == 5 else [])
         for primary in ("baseline", "strand_slip"):

@@ -43,8 +43,8 @@ def bench_path(tmp_path_factory):
 
 def _run(bench_path, store, settings):
     lines = []
-    run(load_bench(bench_path), [resolve_damper("damper1")], store, store.parent / "report", settings,
-        progress=False, say=lines.append)
+    run(load_bench(bench_path), [resolve_damper("damper1")], store=store, report_dir=store.parent / "report",
+        settings=settings, progress=False, say=lines.append)
     return lines
 
 

@@ -60,8 +60,9 @@ def run_store(tmp_path_factory):
     bench = load_bench(path)
     runs = tmp / "runs"
     settings = Settings(seed=3, sampler=FAST, workers=2)
-    sample_tests(clean(bench, [d], runs, settings), [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], runs, settings, progress=False)
-    map_damper(runs, "damper1", settings)
+    data = clean(bench, [d], store=runs, settings=settings)
+    sample_tests(data, [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], store=runs, settings=settings, progress=False)
+    map_damper(runs, "damper1", settings=settings)
     return runs
 
 

@@ -64,9 +64,9 @@ def _draws(store, test):
 def test_a_tests_draws_do_not_depend_on_the_other_tests(twin_bench, tmp_path):
     d = resolve_damper("damper1")
     settings = Settings(seed=4, sampler=FAST, workers=1)
-    both = sample_tests(twin_bench, [(d, "0.5-0.5-again"), (d, "0.5-0.5")], tmp_path / "both", settings,
+    both = sample_tests(twin_bench, [(d, "0.5-0.5-again"), (d, "0.5-0.5")], store=tmp_path / "both", settings=settings,
                         progress=False)
-    alone = sample_tests(twin_bench, [(d, "0.5-0.5")], tmp_path / "alone", settings, progress=False)
+    alone = sample_tests(twin_bench, [(d, "0.5-0.5")], store=tmp_path / "alone", settings=settings, progress=False)
     np.testing.assert_array_equal(_draws(tmp_path / "both", "0.5-0.5"), _draws(tmp_path / "alone", "0.5-0.5"))
     assert both["damper1", "0.5-0.5"][0]["parameters"] == alone["damper1", "0.5-0.5"][0]["parameters"]
     s = json.loads((tmp_path / "alone" / "damper1" / "0.5-0.5" / "theta1" / "summary.json").read_text())

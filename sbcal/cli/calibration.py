@@ -82,7 +82,7 @@ def cmd_sample(args) -> int:
         bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
     settings = settings_from(args)
     load_prior(args.params, damper, args.priors)  # fail early on a bad set or file, before anything is stored
-    data = cleaned_for(bench, [damper], args.out, settings)
+    data = cleaned_for(bench, [damper], store=args.out, settings=settings, quiet=args.quiet)
     if args.method in ("point", "ga"):
         for t in tests:
             doc = point_fit_test(damper, data, t, paramset=args.params, seed=args.seed, out=args.out,
@@ -92,7 +92,7 @@ def cmd_sample(args) -> int:
                   f"{doc['generations']} generations, {doc['wall_s']:.1f} s")
         return 0
     with executor_for(args.scheduler) as executor:
-        done = sample_tests(data, [(damper, t) for t in tests], args.out, settings, executor=executor,
+        done = sample_tests(data, [(damper, t) for t in tests], store=args.out, settings=settings, executor=executor,
                             command=args.command_line, reuse=False, progress=not args.quiet)
     for (name, t), (s, _) in done.items():
         print_summary(name, t, args.params, s)
@@ -198,7 +198,7 @@ def cmd_map(args) -> int:
 
             doc = docs[key]
             damper = resolve_damper(args.damper)
-            data = cleaned_for(bench_for(args), [damper], args.runs, settings_from(args))
+            data = cleaned_for(bench_for(args), [damper], store=args.runs, settings=settings_from(args))
             joint = joint_from_runs(damper, data, args.runs, doc, args.params,
                                     seed=args.seed, progress=f"{args.damper} joint")
             doc["joint"] = joint
@@ -304,7 +304,7 @@ def cmd_run(args) -> int:
             raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
     settings = settings_from(args)
     with executor_for(args.scheduler) as executor:
-        index = run(bench, dampers, args.runs, args.output, settings, executor=executor,
+        index = run(bench, dampers, store=args.runs, report_dir=args.output, settings=settings, executor=executor,
                     command=args.command_line, progress=not args.quiet, until=args.until)
     print(f"wrote {index}" if index is not None else f"stopped after {args.until}: results stored in {args.runs}")
     return 0

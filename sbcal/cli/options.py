@@ -91,15 +91,23 @@ def bench_for(args):
     return load_bench(path, sheet=getattr(args, "sheet", None))
 
 
-def cleaned_for(bench, dampers, store, settings):
+def cleaned_for(bench, dampers, *, store, settings, quiet: bool = False):
     """``bench`` cleaned by the pipeline's clean stage in the run store ``store`` (its stored decision
-    reused while fresh, else made and stored): the runs every later stage reads."""
+    reused while fresh, else made and stored, which is said on stderr unless ``quiet``): the runs every
+    later stage reads."""
+    import sys
+
     from ..pipeline import clean
 
     for d in dampers:
         if d.name not in bench.dampers():
             raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
-    return clean(bench, dampers, store, settings)
+
+    def say(line):
+        if ": redone" in line and not quiet:
+            print(line, file=sys.stderr)
+
+    return clean(bench, dampers, store=store, settings=settings, say=say)
 
 
 def settings_from(args, **extra):

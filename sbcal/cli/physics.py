@@ -40,7 +40,10 @@ def cmd_diagnose(args) -> int:
 
     damper = resolve_damper(args.damper)
     settings = settings_from(args)
-    data = cleaned_for(bench_for(args), [damper], args.runs, settings)
+    bench = bench_for(args)
+    for t in args.tests or []:
+        bench.test(damper.name, t)  # an unknown label fails before anything is stored
+    data = cleaned_for(bench, [damper], store=args.runs, settings=settings, quiet=args.quiet)
     config = replace(settings.diagnose, workers=args.workers)
     with executor_for(args.scheduler) as executor:
         if executor is not None:  # the diagnosis as one job on the cluster
@@ -52,7 +55,7 @@ def cmd_diagnose(args) -> int:
                               prior_path=args.priors, store=args.runs)
     result["command"] = args.command_line
     if args.tests is None:  # a whole-damper diagnosis: 'sbcal run' may reuse it while its inputs hold
-        result["inputs"] = diagnose_inputs(data, damper, settings)
+        result["inputs"] = diagnose_inputs(data, damper, settings=settings)
     if args.json:
         write_json(args.json, result, indent=1)
     stored = diagnose_path(args.runs, damper.name)
@@ -123,7 +126,7 @@ def cmd_cable(args) -> int:
     from ..model.damper import resolve_damper
 
     damper = resolve_damper(args.damper)
-    data = cleaned_for(bench_for(args), [damper], args.runs, settings_from(args))
+    data = cleaned_for(bench_for(args), [damper], store=args.runs, settings=settings_from(args), quiet=args.quiet)
     laws = None if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
     fits, comparison = fit_damper_cable(damper, data, laws=laws, seed=args.seed, prior_path=args.priors,
                                         workers=args.workers, progress=not args.quiet)

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 
 from threadpoolctl import threadpool_limits
 
 
-__all__ = ["one_blas_thread", "default_workers", "run_jobs"]
+__all__ = ["one_blas_thread", "default_workers", "process_pool", "run_jobs"]
 
 
 def default_workers() -> int:
@@ -32,6 +33,17 @@ def default_workers() -> int:
 def one_blas_thread():
     """A context manager: BLAS libraries loaded in this process use one thread inside it."""
     return threadpool_limits(limits=1, user_api="blas")
+
+
+@contextmanager
+def process_pool(workers: int):
+    """A pool of ``workers`` local processes (None when ``workers`` <= 1: work stays in this process),
+    shut down on exit. The pool of :func:`run_jobs` and of the engine's ensemble rounds."""
+    if workers <= 1:
+        yield None
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        yield pool
 
 
 def run_jobs(fn, jobs, *, workers: int = 1, executor=None, label: str | None = None, unit: str = "job") -> list:
@@ -53,13 +65,9 @@ def run_jobs(fn, jobs, *, workers: int = 1, executor=None, label: str | None = N
 
     out = []
     with progress_bar(label, total=len(jobs), unit=unit) as bar:
-        if executor is None and workers > 1 and len(jobs) > 1:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                for r in pool.map(fn, jobs):
-                    out.append(r)
-                    bar.update(1)
-        else:
-            for r in (executor.map(fn, jobs) if executor is not None else map(fn, jobs)):
+        with process_pool(workers if executor is None and len(jobs) > 1 else 1) as pool:
+            runner = executor or pool  # a cluster, local processes, or this process
+            for r in (runner.map(fn, jobs) if runner is not None else map(fn, jobs)):
                 out.append(r)
                 bar.update(1)
     return out

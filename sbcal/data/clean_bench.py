@@ -75,7 +75,8 @@ class CleanBench:
         return data.select_runs([r for r in data.runs if r not in removed]) if removed else data
 
     @classmethod
-    def from_stored(cls, bench: BenchData, tests: dict, *, z_threshold: float, source: str = "data.json") -> "CleanBench":
+    def from_stored(cls, bench: BenchData, tests: dict, *, z_threshold: float,
+                    source: str = "data.json") -> "CleanBench":
         """A cleaned bench from stored decisions ``{damper: {test: {"removed_runs": [...], ...}}}``
         (the ``tests`` of the clean stage's ``data.json``); ``source`` names the file in messages."""
         removed = {}

@@ -104,7 +104,7 @@ def _check_model(fits, keys, case: _Case):
     return z, thr, coverage, np.concatenate([parts[t] for t in tests]), glob
 
 
-def _summary(name, fits, keys, check, ref_i, bands, tests) -> dict:
+def _summary(name, fits, *, keys, check, ref_i, bands, tests) -> dict:
     """Numbers of one model from its :func:`_check_model`: ELPD, misfit, coverage, convergence."""
     z, thr, coverage, elpd_i, glob = check
     out = {"effect": name, "elpd": float(elpd_i.sum()),
@@ -132,12 +132,12 @@ def _misfit(bands, tests, z, glob) -> float:
     return _band_sq(bands, tests, z) if bands else max(glob["excess"], 0.0)
 
 
-def _explained(bands, tests, z_ref, glob_ref, z_new, glob_new) -> float:
-    before = _misfit(bands, tests, z_ref, glob_ref)
+def _explained(bands, tests, *, ref_check, new_check) -> float:
+    """The share of the reference model's misfit (:func:`_misfit`) a new model removes."""
+    before = _misfit(bands, tests, ref_check[0], ref_check[4])
     if before <= 0:
         return 0.0
-    after = _band_sq(bands, tests, z_new) if bands else max(glob_new["excess"], 0.0)
-    return float(1 - after / before)
+    return float(1 - _misfit(bands, tests, new_check[0], new_check[4]) / before)
 
 
 # --- the diagnosis -------------------------------------------------------------------------------
@@ -145,7 +145,7 @@ def _explained(bands, tests, z_ref, glob_ref, z_new, glob_new) -> float:
 def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
     """Check and rank candidate models against a reference model's check; ``(ranking, summaries, checks, kept)``."""
     tests = case.tests
-    z_ref, _, _, ref_i, glob_ref = ref_check
+    ref_i = ref_check[3]
     ranking, summaries, checks, kept, laws = [], {}, {}, {}, {}
     for e in candidates:
         name = spec_of(e)
@@ -153,8 +153,8 @@ def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
         kept[e] = keys_fits
         keys = sorted(keys_fits)
         checks[e] = _check_model(keys_fits, keys, case)
-        s = _summary(name, keys_fits, keys, checks[e], ref_i, bands, tests)
-        s["explained"] = _explained(bands, tests, z_ref, glob_ref, checks[e][0], checks[e][4])
+        s = _summary(name, keys_fits, keys=keys, check=checks[e], ref_i=ref_i, bands=bands, tests=tests)
+        s["explained"] = _explained(bands, tests, ref_check=ref_check, new_check=checks[e])
         if comparison is not None:
             s["law"] = comparison
             laws[e] = comparison
@@ -244,7 +244,7 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     misfit = bool(bands) or glob0["p_value"] < config.global_alpha
     statistics = _statistics(damper, tests, likes, base_fits, z0)
     screen = _screen(statistics, config, EXTENSIONS)
-    before = _summary("baseline", fits, base_keys, base_check, None, bands, tests)
+    before = _summary("baseline", fits, keys=base_keys, check=base_check, ref_i=None, bands=bands, tests=tests)
 
     # 3. name: refit the screened candidates
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
@@ -343,7 +343,8 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None
     out["ranking"] = ranking
     best = ranking[0]["effect"]
     out["after"] = summaries[best]
-    out["before"] = _summary(primary, primary_fits, sorted(primary_fits), primary_check, None, bands1, tests)
+    out["before"] = _summary(primary, primary_fits, keys=sorted(primary_fits), check=primary_check, ref_i=None,
+                             bands=bands1, tests=tests)
     if choice in options:
         out["effect"] = choice
         base_names = tuple(n for n in next(iter(primary_fits.values()))["names"])

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import emcee
@@ -50,7 +49,7 @@ import numpy as np
 from scipy.optimize import differential_evolution, minimize
 
 from ..core.progress import progress_bar
-from ..core.workers import default_workers, one_blas_thread
+from ..core.workers import default_workers, one_blas_thread, process_pool
 from .stats import convergence
 
 
@@ -520,8 +519,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         # the first round's independence proposal: the Laplace approximation at the mode
         first = _TProposal(mean=z0, chol=_capped_chol(prior, cov)) if full else None
         proposals = [first] * config.n_ensembles
-        pool = ProcessPoolExecutor(max_workers=len(groups)) if len(groups) > 1 else None
-        try:
+        with process_pool(len(groups)) as pool:
             while True:
                 jobs = []
                 for grp in groups:
@@ -558,9 +556,6 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 block = min(max(more, n // 10, 50), n, config.max_steps - n)
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [_fit_proposal(c[burn:]) for c in per]
-        finally:
-            if pool:
-                pool.shutdown()
     natural = prior.to_natural(x.reshape(-1, prior.ndim))
     params = {nm: natural[:, i] for i, nm in enumerate(names)}
     loglik = None
