@@ -104,8 +104,9 @@ def _check_model(fits, keys, case: _Case):
     return z, thr, coverage, np.concatenate([parts[t] for t in tests]), glob
 
 
-def _summary(name, fits, *, keys, check, ref_i, bands, tests) -> dict:
-    """Numbers of one model from its :func:`_check_model`: ELPD, misfit, coverage, convergence."""
+def _summary(name, fits, *, keys, check, bands, tests, ref_i=None) -> dict:
+    """Numbers of one model from its :func:`_check_model`: ELPD, misfit, coverage, convergence; with the
+    reference model's pointwise ELPD ``ref_i``, the difference to it."""
     z, thr, coverage, elpd_i, glob = check
     out = {"effect": name, "elpd": float(elpd_i.sum()),
            "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
@@ -122,8 +123,7 @@ def _summary(name, fits, *, keys, check, ref_i, bands, tests) -> dict:
            "steps_max": max(fits[k]["convergence"]["n_steps"] for k in keys),
            "not_converged": {" ".join(k[:2]): fits[k]["convergence"]["reason"] for k in keys if not fits[k]["converged"]}}
     if ref_i is not None:
-        d, se = elpd_difference(ref_i, elpd_i)
-        out.update(delta_elpd=d, se=se)
+        out["delta_elpd"], out["se"] = elpd_difference(ref_i, elpd_i)
     return out
 
 
@@ -145,7 +145,6 @@ def _explained(bands, tests, *, ref_check, new_check) -> float:
 def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
     """Check and rank candidate models against a reference model's check; ``(ranking, summaries, checks, kept)``."""
     tests = case.tests
-    ref_i = ref_check[3]
     ranking, summaries, checks, kept, laws = [], {}, {}, {}, {}
     for e in candidates:
         name = spec_of(e)
@@ -153,7 +152,7 @@ def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
         kept[e] = keys_fits
         keys = sorted(keys_fits)
         checks[e] = _check_model(keys_fits, keys, case)
-        s = _summary(name, keys_fits, keys=keys, check=checks[e], ref_i=ref_i, bands=bands, tests=tests)
+        s = _summary(name, keys_fits, keys=keys, check=checks[e], bands=bands, tests=tests, ref_i=ref_check[3])
         s["explained"] = _explained(bands, tests, ref_check=ref_check, new_check=checks[e])
         if comparison is not None:
             s["law"] = comparison
@@ -244,7 +243,7 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     misfit = bool(bands) or glob0["p_value"] < config.global_alpha
     statistics = _statistics(damper, tests, likes, base_fits, z0)
     screen = _screen(statistics, config, EXTENSIONS)
-    before = _summary("baseline", fits, keys=base_keys, check=base_check, ref_i=None, bands=bands, tests=tests)
+    before = _summary("baseline", fits, keys=base_keys, check=base_check, bands=bands, tests=tests)
 
     # 3. name: refit the screened candidates
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
@@ -343,8 +342,8 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None
     out["ranking"] = ranking
     best = ranking[0]["effect"]
     out["after"] = summaries[best]
-    out["before"] = _summary(primary, primary_fits, keys=sorted(primary_fits), check=primary_check, ref_i=None,
-                             bands=bands1, tests=tests)
+    out["before"] = _summary(primary, primary_fits, keys=sorted(primary_fits), check=primary_check, bands=bands1,
+                             tests=tests)
     if choice in options:
         out["effect"] = choice
         base_names = tuple(n for n in next(iter(primary_fits.values()))["names"])
