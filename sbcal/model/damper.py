@@ -1,4 +1,4 @@
-"""Damper descriptions: the TOML contract (``shared/spec/formats.md`` section 1) to a frozen
+"""Damper descriptions: the TOML contract (``docs/formats.md``, "Damper description") to a frozen
 :class:`Damper`.
 
 Units are SI throughout. The parameter names used here (``m1``, ``J1``, ``a1``, ``L1``, ``mu``,

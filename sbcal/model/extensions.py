@@ -77,7 +77,7 @@ EXTENSIONS = {e.id: e for e in (
         ("frequency_dependent_stiffness", "the cable stiffens (or softens) with frequency: a viscoelastic cable"),
     )),
 )}
-"""The catalogue, by id, in the order of ``shared/notes/model.md``."""
+"""The catalogue, by id, in the order of ``docs/diagnose.md`` ("The catalogue")."""
 
 
 def _base(params: dict) -> dict:

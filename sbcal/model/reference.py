@@ -1,5 +1,5 @@
 """A plain transcription of the thesis's Appendix C MATLAB listing (generic 6x6 assembly and a
-per-frequency solve), with the typos of ``shared/notes/model.md`` corrected.
+per-frequency solve), with the seed's typos corrected (``docs/model.md``, "Where it departs from the seed").
 
 It is the yardstick for :mod:`sbcal.model.fem` (tests agree to 1e-10) and the "thesis workflow"
 baseline of the benchmarks. It is deliberately slow and simple: do not use it for fitting.

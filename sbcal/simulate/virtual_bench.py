@@ -4,7 +4,7 @@ A real bench measures a real damper; to prove the tool on data whose physics is 
 from the fit, this module plays the bench (``docs/virtual_bench.md``). The damper is the 6-DOF model
 of :mod:`sbcal.model.fem` with each arm's rigidity and loss factor free to depend on the line (per-arm,
 per-line values through :func:`sbcal.model.fem.arm_impedance`), plus switchable effects the calibration
-model leaves out (``shared/notes/model.md``, "Physics the linear model leaves out"):
+model leaves out (``docs/virtual_bench.md``, "Effects"; the catalogue of ``docs/diagnose.md``):
 
 ==============================  =============================  ==========================================
 id                              VALUE                          equation
@@ -73,7 +73,7 @@ EFFECTS = (
     "base_rocking",
     "frequency_dependent_stiffness",
 )
-"""Catalogue effect ids (the discrepancy catalogue of ``shared/notes/model.md``)."""
+"""Catalogue effect ids (the catalogue of ``docs/diagnose.md``)."""
 
 EXTRA_EFFECTS = ("fixture_resonance",)
 """Selectable effects outside the catalogue (physics no catalogue entry explains)."""
