@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import InputError
-from .options import (bench_for, bench_options, cleaned_for, parse_frequencies, parse_set, print_summary, scale_options,
-                      settings_from, workers_option)
+from .options import (bench_for, bench_options, check_dampers, cleaned_for, parse_frequencies, parse_set,
+                      print_summary, scale_options, settings_from, workers_option)
 
 
 __all__ = [
@@ -172,8 +172,6 @@ def add_map(sub):
 
 
 def cmd_map(args) -> int:
-    pass
-
     from ..core._io import write_json
     from ..inference.amplitude import amplitude_map, map_from_store, points_from_table, stored_maps
 
@@ -299,9 +297,7 @@ def cmd_run(args) -> int:
         raise InputError(f"{bench.source}: none of its dampers ({', '.join(bench.dampers())}) is bundled; "
                          "name a description with --damper PATH")
     dampers = [resolve_damper(n) for n in names]
-    for d in dampers:
-        if d.name not in bench.dampers():
-            raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
+    check_dampers(bench, dampers)
     settings = settings_from(args)
     with executor_for(args.scheduler) as executor:
         index = run(bench, dampers, store=args.runs, report_dir=args.output, settings=settings, executor=executor,

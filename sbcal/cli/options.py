@@ -13,7 +13,7 @@ from ..core.workers import default_workers
 
 __all__ = [
     "Parser", "parse_set", "parse_frequencies", "bench_options", "damper_options", "workers_option", "scale_options",
-    "bench_for", "cleaned_for", "settings_from", "print_summary",
+    "bench_for", "check_dampers", "cleaned_for", "settings_from", "print_summary",
 ]
 
 class Parser(argparse.ArgumentParser):
@@ -26,7 +26,7 @@ class Parser(argparse.ArgumentParser):
 def parse_set(items) -> dict:
     """``["EJ=9", "beta=0.3"]`` -> ``{"EJ": 9.0, "beta": 0.3}``, names checked against the model."""
     from ..model.fem import PARAMETER_NAMES
-    from ..simulate.virtual_bench import finite_number
+    from ..core._io import finite_number
 
     out = {}
     for item in items or ():
@@ -91,6 +91,13 @@ def bench_for(args):
     return load_bench(path, sheet=getattr(args, "sheet", None))
 
 
+def check_dampers(bench, dampers) -> None:
+    """Every damper of ``dampers`` has rows in ``bench``; else one line naming the file and what it has."""
+    for d in dampers:
+        if d.name not in bench.dampers():
+            raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
+
+
 def cleaned_for(bench, dampers, *, store, settings, quiet: bool = False):
     """``bench`` cleaned by the pipeline's clean stage in the run store ``store`` (its stored decision
     reused while fresh, else made and stored, which is said on stderr unless ``quiet``): the runs every
@@ -99,9 +106,7 @@ def cleaned_for(bench, dampers, *, store, settings, quiet: bool = False):
 
     from ..pipeline import clean
 
-    for d in dampers:
-        if d.name not in bench.dampers():
-            raise InputError(f"{bench.source}: no rows of damper {d.name!r} (has: {', '.join(bench.dampers())})")
+    check_dampers(bench, dampers)
 
     def say(line):
         if ": redone" in line and not quiet:

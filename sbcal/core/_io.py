@@ -5,6 +5,7 @@ half-written output file behind.
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 import tomllib
@@ -14,7 +15,7 @@ from pathlib import Path
 from .errors import InputError
 
 
-__all__ = ["read_toml", "name_and_description", "atomic_path", "write_json", "bundled_names", "resolve_bundled"]
+__all__ = ["read_toml", "name_and_description", "finite_number", "atomic_path", "write_json", "bundled_names", "resolve_bundled"]
 
 
 def read_toml(path) -> dict:
@@ -47,6 +48,29 @@ def name_and_description(doc: dict, path: str) -> tuple[str, str]:
     if not isinstance(description, str):
         raise InputError(f"{path}: key 'description': expected a string, got {type(description).__name__}")
     return name, description
+
+
+def finite_number(text: str, what: str) -> float:
+    """``text`` as a finite float (a ``--set`` value on the command line, an effect's value of the virtual bench).
+
+    Parameters
+    ----------
+    text : str
+    what : str
+        Where it was given, the start of the error, e.g. ``"effect 'sensor_delay=x'"``.
+
+    Raises
+    ------
+    InputError
+        One line: ``text`` is not a number, or not finite.
+    """
+    try:
+        x = float(text)
+    except ValueError:
+        raise InputError(f"{what}: {text!r} is not a number") from None
+    if not math.isfinite(x):
+        raise InputError(f"{what}: value is not finite")
+    return x
 
 
 @contextmanager

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
+from ..core._io import finite_number
 from ..core.errors import InputError
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
 from ..data.labels import parse_label
@@ -58,7 +59,6 @@ __all__ = [
     "FixtureResonance",
     "BenchConfig",
     "parse_effect",
-    "finite_number",
     "test_amplitude",
     "response",
     "record",
@@ -194,29 +194,6 @@ _KEYED = {
     "fixture_resonance": (FixtureResonance, "freq_hz", {"f": "freq_hz", "freq_hz": "freq_hz", "m": "mass_kg",
                                                         "mass_kg": "mass_kg", "eta": "eta"}),
 }
-
-
-def finite_number(text: str, what: str) -> float:
-    """``text`` as a finite float (an effect's value here, a ``--set`` value on the command line).
-
-    Parameters
-    ----------
-    text : str
-    what : str
-        Where it was given, the start of the error, e.g. ``"effect 'sensor_delay=x'"``.
-
-    Raises
-    ------
-    InputError
-        One line: ``text`` is not a number, or not finite.
-    """
-    try:
-        x = float(text)
-    except ValueError:
-        raise InputError(f"{what}: {text!r} is not a number") from None
-    if not math.isfinite(x):
-        raise InputError(f"{what}: value is not finite")
-    return x
 
 
 def parse_effect(spec: str):
