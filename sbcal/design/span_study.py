@@ -14,7 +14,7 @@ from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
 from ..data.labels import parse_label
 from ..inference.store import span_dir as store_span_dir
-from ..inference.store import span_dirs
+from ..inference.store import owner, span_dirs
 from ..model.damper import Damper
 from .cable_run import RANGE_STATUS
 from .conductor import Conductor
@@ -324,7 +324,7 @@ def span_dir(study: SpanStudy, runs_dir=None) -> Path:
     """``<runs>/span/<label>``; ``<runs>`` defaults to the store holding the cable run (its
     grandparent: ``runs/damper1/cable-dry`` -> ``runs``), or ``runs`` for a bare span."""
     if runs_dir is None:
-        runs_dir = Path(study.cable).parent.parent if study.cable else Path("runs")
+        runs_dir = owner(study.cable)[0] if study.cable else Path("runs")
     return store_span_dir(runs_dir, study.label)
 
 

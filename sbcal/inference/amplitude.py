@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -38,7 +37,7 @@ from .priors import Prior
 from .runs import posterior_draws
 from .sampler import SamplerConfig, sample
 from .stats import elpd_difference, loo
-from .store import damper_dir, dampers, map_path
+from .store import SUMMARY, damper_dir, dampers, map_path, run_dirs
 
 
 __all__ = ["TestPoint", "LawFit", "fit_law", "amplitude_map", "map_from_store", "stored_maps", "law_curve", "plot_map",
@@ -288,9 +287,7 @@ def _summaries_digest(runs_dir, damper: str, paramset: str) -> dict:
     """sha256 of every finished run's summary.json of a damper: what a map is made from."""
     import hashlib
 
-    root = Path(runs_dir) / damper
-    return {p.parent.parent.name: hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.glob(f"*/{paramset}/summary.json"))}
+    return {t: hashlib.sha256((d / SUMMARY).read_bytes()).hexdigest() for t, d in run_dirs(runs_dir, damper, paramset)}
 
 
 def map_from_store(runs_dir, damper: str, paramset: str = "theta1", *, seed: int = 0, include_oiled: bool = False,

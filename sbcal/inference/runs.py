@@ -24,7 +24,7 @@ import xarray as xr
 from ..core._io import atomic_path, write_json
 from ..core.errors import InputError
 from .stats import arviz_version, inference_data, read_netcdf
-from .store import POSTERIOR, SUMMARY
+from .store import POSTERIOR, SUMMARY, run_dirs
 
 
 __all__ = ["to_inference_data", "summarize", "write_run", "read_summary", "read_run", "versions",
@@ -186,10 +186,7 @@ def posterior_draws(runs_dir, damper: str, paramset: str, parameters):
 
     ``draws`` maps each of ``parameters`` that the run has to its flattened posterior draws.
     """
-    root = Path(runs_dir) / damper
-    if not root.is_dir():
-        return
-    for d in sorted(p.parent for p in root.glob(f"*/{paramset}/summary.json")):
+    for _, d in run_dirs(runs_dir, damper, paramset):
         idata, summary = read_run(d)
         amp = np.asarray(idata.constant_data["amplitude_mm_pp"])
         amplitude = float(amp[0]) if np.allclose(amp, amp[0]) else None

@@ -20,8 +20,9 @@ from __future__ import annotations
 from pathlib import Path
 
 
-__all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "point_fit_path", "data_path", "diagnose_path",
-           "map_path", "cable_dir", "cable_dirs", "cable_state_of", "prediction_dir", "span_dir", "span_dirs"]
+__all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "run_dirs", "point_fit_path", "data_path",
+           "diagnose_path", "map_path", "cable_dir", "cable_dirs", "cable_state_of", "owner", "prediction_dir", "span_dir",
+           "span_dirs"]
 
 SUMMARY = "summary.json"
 POSTERIOR = "posterior.nc"
@@ -43,6 +44,17 @@ def damper_dir(runs, damper: str) -> Path:
 def run_dir(runs, damper: str, test: str, paramset: str) -> Path:
     """``<runs>/<damper>/<test>/<paramset>``: a test's posterior."""
     return damper_dir(runs, damper) / test / paramset
+
+
+def run_dirs(runs, damper: str, paramset: str, *, finished: bool = True) -> list[tuple[str, Path]]:
+    """``[(test, directory)]`` of a damper's per-test runs of ``paramset``, by test label; only those
+    with their ``summary.json`` (finished) unless ``finished`` is False."""
+    root = damper_dir(runs, damper)
+    if finished:
+        dirs = [p.parent for p in root.glob(f"*/{paramset}/{SUMMARY}")]
+    else:
+        dirs = list(root.glob(f"*/{paramset}"))
+    return [(d.parent.name, d) for d in sorted(dirs)]
 
 
 def point_fit_path(runs, damper: str, test: str, paramset: str) -> Path:
@@ -79,6 +91,13 @@ def cable_dirs(runs, damper: str) -> list[tuple[str, Path]]:
 def cable_state_of(directory) -> str:
     """The cable state a cable run's directory is named for (``cable-dry`` -> ``dry``)."""
     return Path(directory).name.removeprefix(_CABLE)
+
+
+def owner(directory) -> tuple[Path, str]:
+    """``(<runs>, <damper>)`` of a damper's result (``runs/damper1/cable-dry`` or ``runs/damper1/diagnose.json``
+    -> ``(runs, "damper1")``)."""
+    d = Path(directory).parent
+    return d.parent, d.name
 
 
 def prediction_dir(cable_run, damper: str, state: str) -> Path:

@@ -21,7 +21,7 @@ from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
 from ..core.workers import run_jobs
 from ..inference.sampler import POLICY
-from ..inference.store import cable_dirs
+from ..inference.store import cable_dirs, owner, run_dirs
 from ..inference.store import data_path as store_data_path
 from ..inference.store import dampers as stored_dampers
 from ..inference.store import diagnose_path
@@ -257,7 +257,7 @@ def _diagnosis(path: Path, figs: Path):
     except (ValueError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a diagnosis written by sbcal diagnose ({e})") from None
     cables = {}
-    for state, d in cable_dirs(path.parent.parent, path.parent.name):
+    for state, d in cable_dirs(*owner(path)):
         cables[state] = read_cable(d)
     if cables:
         doc["law_figure"] = _law_figure(cables, figs / f"{doc['damper']}_law.png")
@@ -422,7 +422,7 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     dampers = []
 
     names = stored_dampers(runs)
-    test_dirs = {d: sorted({p.parent.name for p in (runs / d).glob(f"*/{paramset}")}) for d in names}
+    test_dirs = {d: [t for t, _ in run_dirs(runs, d, paramset, finished=False)] for d in names}
     # the figures are drawn in worker processes (what takes the time); one job a test or a damper's extras
     jobs = [(_test_item, ("test", d, t), (runs, d, t, paramset, figs)) for d in names for t in test_dirs[d]]
     jobs += [(_diagnosis, ("diagnosis", d), (diagnose_path(runs, d), figs)) for d in names]
