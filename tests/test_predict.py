@@ -416,7 +416,7 @@ def test_impedance_for_the_span(run):
     from sbcal.design.conductor import resolve_conductor
     from sbcal.design.span import energy_balance
 
-    imp = impedance_from_cable(run, NEW, n_draws=6, seed=1)
+    imp = impedance_from_cable(run, NEW, n_draws=6, seed=1, model_error=False)
     f = np.array([8.0, 15.0, 30.0])
     amp = np.array([[1e-4, 5e-4, 2e-3]] * imp.n_draws) * np.arange(1, imp.n_draws + 1)[:, None]
     k = imp(f, amp)
@@ -429,6 +429,31 @@ def test_impedance_for_the_span(run):
     np.testing.assert_array_equal(imp(f, amp[:1]), imp(f, np.repeat(amp[:1], imp.n_draws, axis=0)))
     r = energy_balance(resolve_conductor("drake"), imp, 1.0, n_freq=4)
     assert r.ymax_m.shape == (imp.n_draws, 4) and np.isfinite(r.ymax_m).any()
+
+
+def test_span_impedance_band_is_predicts_band(run):
+    """The span's impedance holds what predict's band holds (posterior, tolerances, model error): at
+    one line and amplitude, its stiffness and power quantiles over (draw, error) samples equal
+    predict's. The span draws one error pair per (draw, line), so the line is repeated 200 times
+    (24 draws x 200 = 4 800 samples against predict's 4 000): the quantiles' Monte Carlo standard
+    error is about 2.1 sigma / sqrt(n) at 5 % and 95 %, 0.047 sigma for the two samples together, or
+    1.4 % of the 90 % band's width (3.29 sigma); they must agree to 6 % of it (4 standard errors)."""
+    f0, amp = 15.0, 1.0
+    p = predict(run, NEW, amplitude_mm_pp=amp, freq_hz=[f0], n_draws=300, seed=3)
+    imp = impedance_from_cable(run, NEW, n_draws=300, seed=3)
+    assert imp.model_error is not None and imp.model_error.as_dict() == p.model_error
+    f = np.full(200, f0)
+    k = imp(f, np.full((1, f.size), amp / 2e3)).ravel()
+    power = 0.5 * 2 * np.pi * f0 * k.imag * (amp / 2e3) ** 2
+    for mine, theirs in ((np.abs(k), p.stiffness_n_per_m[0, :, 0]), (power, p.power_w[0, :, 0])):
+        q = np.quantile(mine, (0.05, 0.5, 0.95))
+        width = theirs[2] - theirs[0]
+        np.testing.assert_allclose(q, theirs, atol=0.06 * width)
+    # without the model error the band is the posterior's and the tolerances' alone: narrower
+    bare = np.abs(impedance_from_cable(run, NEW, n_draws=300, seed=3, model_error=False)(f, np.full((1, f.size), amp / 2e3)))
+    assert np.ptp(np.quantile(bare, (0.05, 0.95))) < 0.9 * np.ptp(np.quantile(np.abs(k), (0.05, 0.95)))
+    # the same seed gives the same errors at every call (common random numbers across positions)
+    np.testing.assert_array_equal(imp(f, np.full((1, f.size), amp / 2e3)).ravel(), k)
 
 
 # --- the command line and the report --------------------------------------------------------------

@@ -135,6 +135,9 @@ def add_span(sub):
     p.add_argument("--optimise", "--optimize", action="store_true",
                    help="also find the position (one damper per equipped end) that maximises the 10 %% quantile of "
                         "the worst-case margin over the band; plot the margin against position")
+    p.add_argument("--no-model-error", action="store_true",
+                   help="the damper's band from the cable posterior and the tolerances alone, without the "
+                        "calibration's residual scale (as 'sbcal predict --no-model-error'; docs/span.md)")
     p.add_argument("--wave", choices=("travelling", "standing"), default="travelling",
                    help="damper power: travelling-wave termination (default, exact for point dampers) or the "
                         "standing-wave formula (light dampers)")
@@ -169,7 +172,7 @@ def cmd_span(args) -> int:
     try:
         study = span_study(args.conductor, args.damper, cable=args.cable, position_m=args.position, ends=args.dampers,
                            wind=wind, n_freq=args.lines, n_draws=args.draws, seed=args.seed, optimise=args.optimise,
-                           wave=args.wave)
+                           wave=args.wave, model_error=not args.no_model_error)
     except InputError as e:  # the library names its keywords; say them as options
         text = str(e)
         for key, opt in (("position_m: ", "--position: "), ("position: ", "--position: "), ("wind: ", "--wind: "),
@@ -201,6 +204,12 @@ def cmd_span(args) -> int:
                   f"({ends}): worst stress "
                   f"{ws['median']:.3g} [{ws['q05']:.3g}, {ws['q95']:.3g}] MPa, margin {q50:.3g} [{q05:.3g}, {q95:.3g}] "
                   f"(median [5 %, 95 %]; {_margin_words(q05)} for 95 % of the draws)")
+            wl = study.worst_line()
+            band = ("posterior, tolerances and model error" if study.model_error is not None
+                    else "posterior and tolerances")
+            print(f"  worst line  : {wl['frequency_hz']:.3g} Hz (wind {wl['wind_m_s']:.3g} m/s), stress "
+                  f"{wl['stress_mpa']['median']:.3g} [{wl['stress_mpa']['q05']:.3g}, {wl['stress_mpa']['q95']:.3g}] MPa "
+                  f"(band: {band})")
         p = study.placement
         if p is not None:
             q = round(100 * p.quantile)

@@ -1,5 +1,16 @@
 """The damper as a span sees it: the clamp impedance of a damper built with a calibrated cable, per
-posterior draw, over the span's frequencies (what :mod:`sbcal.design.span` reads)."""
+posterior draw, over the span's frequencies (what :mod:`sbcal.design.span` reads).
+
+Its band holds what ``sbcal predict``'s band holds, by the same switches: the cable posterior (a
+subset of its draws), the damper file's tolerances (geometry drawn per draw) and, unless switched
+off, the calibration's learned model error (:func:`sbcal.design.predict.model_error_of`: per
+calibrated amplitude the rms residual of ln|f| and of the phase of the run means about the model):
+each (draw, line) gets its own standard-normal pair ``z``, fixed by the seed and the lines, scaled by
+the residual at the clamp amplitude the balance asks for. The same ``z`` at every amplitude of one
+(draw, line) keeps K* a smooth function of the amplitude (the balance's roots need one), and the same
+seed gives the same ``z`` at every damper position and design (common random numbers: comparisons
+between positions or designs are not blurred by the Monte Carlo).
+"""
 
 from __future__ import annotations
 
@@ -11,7 +22,7 @@ from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
 from .cable_run import (_cable_params, _geometry, _is_calibration_damper, _streams, _subset, _tolerance, _unit_draws,
                         load_cable_run)
-from .predict import _draw_checks
+from .predict import ModelError, _draw_checks, model_error_of
 
 
 __all__ = ["CableImpedance", "impedance_from_cable"]
@@ -34,11 +45,18 @@ class CableImpedance:
     law : str
     params : dict of str -> ndarray, shape (S,)
         The cable draws and the geometry draws.
+    model_error : ModelError or None
+        The calibration's residual scale added per (draw, line) (module docstring); None: the
+        posterior and the tolerances alone.
+    error_seed : int
+        Seeds the standard-normal pairs of the model error (with the lines' count: one set per band).
     """
 
     damper: Damper
     law: str
     params: dict
+    model_error: ModelError | None = None
+    error_seed: int = 0
     model: object = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -58,7 +76,15 @@ class CableImpedance:
         return f, 2e3 * np.broadcast_to(a.reshape(-1, f.size), (self.n_draws, f.size))
 
     def __call__(self, freq_hz, amplitude_m):
-        return self.model.dynamic_stiffness(self.damper, *self._grid(freq_hz, amplitude_m), **self.params)
+        f, a = self._grid(freq_hz, amplitude_m)
+        k = self.model.dynamic_stiffness(self.damper, f, a, **self.params)
+        if self.model_error is None:
+            return k
+        z = np.random.default_rng([self.error_seed, f.size]).standard_normal((2, self.n_draws, f.size))
+        sd_mag, sd_phase = self.model_error.at(a)
+        # a passive damper's loss cannot change sign: the phase error stops at 0 and at 180 deg
+        phase = np.clip(np.angle(k) + z[1] * sd_phase, 0.0, np.pi)
+        return np.abs(k) * np.exp(z[0] * sd_mag) * np.exp(1j * phase)
 
     def curvature_max(self, freq_hz, amplitude_m) -> np.ndarray:
         """The largest curvature amplitude along the arms [1/m], shape (S, F), in the states of
@@ -67,12 +93,15 @@ class CableImpedance:
         return np.where(st.converged, st.curvature_range[..., 1], np.nan)
 
 
-def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0) -> CableImpedance:
+def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0,
+                         model_error: bool = True) -> CableImpedance:
     """The span's :class:`sbcal.design.span.Impedance` of a damper built with a calibrated cable.
 
     Draws as :func:`predict` (posterior subset, geometry within the damper's tolerances; same
     ``seed``, same draws); draws the cable model cannot evaluate (outside the law's domain) are
-    dropped. No bench effects: the span sees the damper itself.
+    dropped. No bench effects: the span sees the damper itself. With ``model_error`` (default, as
+    ``sbcal predict``) the calibration's residual scale is added (module docstring) when the run
+    stores one (:attr:`CableImpedance.model_error` says whether it did).
     """
     cable = load_cable_run(run)
     damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
@@ -83,11 +112,13 @@ def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0) -> C
     tolerance = _tolerance([damper], own)
     params = dict(_cable_params(cable, idx, False, own),
                   **_geometry(damper, tolerance, _unit_draws(tolerance, idx.size, geo)))
+    errors = None
+    if model_error and cable.summary.get("residual_scale") is not None:
+        errors = model_error_of(cable)
     imp = CableImpedance(damper=damper, law=cable.law, params=params)
     probe = imp(np.array([10.0]), np.array([[1e-4]]))[:, 0]
     keep = np.isfinite(probe)
     if not keep.any():
         raise InputError(f"{cable.path}: no posterior draw gives a finite dynamic stiffness")
-    if not keep.all():
-        imp = CableImpedance(damper=damper, law=cable.law, params={k: v[keep] for k, v in params.items()})
-    return imp
+    params = {k: v[keep] for k, v in params.items()}
+    return CableImpedance(damper=damper, law=cable.law, params=params, model_error=errors, error_seed=int(seed))

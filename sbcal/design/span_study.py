@@ -118,6 +118,9 @@ class SpanStudy:
         Frequencies at which some damper's state lies beyond, or below, the calibrated curvature range:
         the median over draws of the largest curvature along its arms
         (:meth:`sbcal.design.cable_run.CableRun.range_status`, the rule of ``sbcal predict``).
+    model_error : dict or None
+        The calibration's residual scale the damper's impedance carries
+        (:class:`sbcal.design.predict.ModelError` ``as_dict()``), None when off or not stored.
     warnings : tuple of str
         The balance's and the study's (cable posterior not converged, law extrapolated).
     """
@@ -134,6 +137,7 @@ class SpanStudy:
     calibrated_curvature: tuple = ()
     extrapolated_hz: tuple = ()
     below_range_hz: tuple = ()
+    model_error: dict | None = None
     warnings: tuple = ()
 
     @property
@@ -155,6 +159,19 @@ class SpanStudy:
         return {"median": _jsonable(np.median(worst)), "q05": _jsonable(np.quantile(worst, 0.05)),
                 "q95": _jsonable(np.quantile(worst, 0.95)), "bare": _jsonable(r.limit_pa / r.margin_bare * 1e-6)}
 
+    def worst_line(self) -> dict:
+        """The line of the band with the largest stress: with the dampers (the largest median over
+        draws; the bare span's own worst line for a bare span). ``{frequency_hz, wind_m_s,
+        stress_mpa: {median, q05, q95}, stress_bare_mpa}``."""
+        r = self.result
+        s = np.where(np.isnan(r.stress_pa), np.inf, r.stress_pa)  # an unsolved draw counts as the worst
+        med = np.median(s, axis=0)
+        i = int(np.argmax(med)) if r.positions_m else int(np.nanargmax(r.stress_bare_pa))
+        lo, mid, hi = np.quantile(s[:, i], [0.05, 0.5, 0.95]) * 1e-6
+        return {"frequency_hz": float(r.freq_hz[i]), "wind_m_s": float(r.wind_mps[i]),
+                "stress_mpa": {"median": _jsonable(mid), "q05": _jsonable(lo), "q95": _jsonable(hi)},
+                "stress_bare_mpa": _jsonable(r.stress_bare_pa[i] * 1e-6)}
+
     def to_dict(self) -> dict:
         """JSON-ready: the source of the damper, :meth:`SpanResult.to_dict` and the placement."""
         doc = {"label": self.label, "damper": self.damper, "cable": self.cable, "cable_damper": self.cable_damper,
@@ -164,6 +181,8 @@ class SpanStudy:
                "extrapolated_hz": list(self.extrapolated_hz), "below_range_hz": list(self.below_range_hz)}
         doc |= self.result.to_dict()
         doc["worst_stress_mpa"] = self.worst_stress_mpa()
+        doc["worst_line"] = self.worst_line()
+        doc["model_error"] = self.model_error
         doc["placement"] = self.placement.to_dict() if self.placement is not None else None
         doc["warnings"] = list(self.warnings)
         return doc
@@ -241,7 +260,8 @@ def _law_range(run, imp, result: SpanResult) -> tuple[dict, list]:
 
 def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int = 1, wind=(1.0, 7.0),
                n_freq: int = 60, n_draws: int = 200, seed: int = 0, optimise: bool = False, positions_m=None,
-               quantile: float = 0.1, wave: str = "travelling", search_draws: int = 40) -> SpanStudy:
+               quantile: float = 0.1, wave: str = "travelling", search_draws: int = 40,
+               model_error: bool = True) -> SpanStudy:
     """One conductor, one damper design from a stored cable fit (or none): the energy balance with
     posterior bands, the bare span beside it, and optionally the placement. Reads the cable run;
     never refits.
@@ -270,6 +290,9 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
         Draws of the placement's scan (a subset: each position is a full balance; 40 draws estimate
         the 10 % quantile of the margin to a few per cent at a fifth of the cost of 200). The result
         at the chosen position is then computed with all ``n_draws``.
+    model_error : bool
+        Add the calibration's residual scale to the damper's impedance, as ``sbcal predict`` adds it
+        to its bands (:mod:`sbcal.design.impedance`); a run that stores none gives a warning.
 
     Returns
     -------
@@ -304,10 +327,14 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
             except InputError as e:
                 raise InputError(f"{c.source or c.name}: span_length_m = {c.span_length_m:g} m; {e}") from None
     notes = [w for w in (run.convergence_warning(), run.range_warning()) if w]
-    imp = impedance_from_cable(run, dmp, n_draws=n_draws, seed=seed)
+    imp = impedance_from_cable(run, dmp, n_draws=n_draws, seed=seed, model_error=model_error)
+    if model_error and imp.model_error is None:
+        notes.append(f"{run.path}/summary.json: no 'residual_scale' (a cable run stored before sbcal kept it): "
+                     "the band holds the cable posterior and the tolerances only, not the model error")
     placement = None
     if optimise:
-        scan = imp if search_draws >= n_draws else impedance_from_cable(run, dmp, n_draws=search_draws, seed=seed)
+        scan = imp if search_draws >= n_draws else impedance_from_cable(run, dmp, n_draws=search_draws, seed=seed,
+                                                                        model_error=model_error)
         placement = optimise_position(c, scan, positions_m, ends=ends, quantile=quantile, wind=wind, n_freq=n_freq,
                                       wave=wave)
     at = position_m if position_m is not None else placement.best_position_m
@@ -317,7 +344,9 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     return SpanStudy(result=r, placement=placement, damper=dmp.name, cable=str(run.path), cable_damper=run.damper,
                      state=run.state, law=run.law, seed=int(seed), calibrated_amplitude_mm_pp=_calibrated_amplitudes(run),
                      calibrated_curvature=curvature, extrapolated_hz=law_range["extrapolated"],
-                     below_range_hz=law_range["below_range"], warnings=tuple(r.warnings) + tuple(notes + law_notes))
+                     below_range_hz=law_range["below_range"],
+                     model_error=imp.model_error.as_dict() if imp.model_error is not None else None,
+                     warnings=tuple(r.warnings) + tuple(notes + law_notes))
 
 
 def span_dir(study: SpanStudy, runs_dir=None) -> Path:
