@@ -138,6 +138,14 @@ def add_span(sub):
     p.add_argument("--no-model-error", action="store_true",
                    help="the damper's band from the cable posterior and the tolerances alone, without the "
                         "calibration's residual scale (as 'sbcal predict --no-model-error'; docs/span.md)")
+    p.add_argument("--life", action="store_true",
+                   help="also the conductor's service life (Miner damage per year on its S-N curve) under the wind "
+                        "climate of --climate, with and without the dampers (life.csv, life.png)")
+    p.add_argument("--climate", metavar="SPEC",
+                   help="wind climate for --life: weibull:k=K,c=C (C in m/s) or a CSV histogram (wind_m_s, "
+                        "hours_per_year[, turbulence_intensity])")
+    p.add_argument("--across", type=float, default=1.0, metavar="SHARE",
+                   help="share of the time the wind blows across the line, for --life (default 1.0)")
     p.add_argument("--wave", choices=("travelling", "standing"), default="travelling",
                    help="damper power: travelling-wave termination (default, exact for point dampers) or the "
                         "standing-wave formula (light dampers)")
@@ -169,10 +177,13 @@ def cmd_span(args) -> int:
     wind = _parse_wind(args.wind)
     if args.draws < 2:
         raise InputError(f"--draws {args.draws}: must be >= 2")
+    if args.life and not args.climate:
+        raise InputError("--life: give the wind climate with --climate (e.g. weibull:k=2.0,c=4.5 or a CSV file)")
     try:
         study = span_study(args.conductor, args.damper, cable=args.cable, position_m=args.position, ends=args.dampers,
                            wind=wind, n_freq=args.lines, n_draws=args.draws, seed=args.seed, optimise=args.optimise,
-                           wave=args.wave, model_error=not args.no_model_error)
+                           wave=args.wave, model_error=not args.no_model_error, climate=args.climate,
+                           across=args.across)
     except InputError as e:  # the library names its keywords; say them as options
         text = str(e)
         for key, opt in (("position_m: ", "--position: "), ("position: ", "--position: "), ("wind: ", "--wind: "),
@@ -217,5 +228,8 @@ def cmd_span(args) -> int:
                   f"{p.positions_m.size} positions {p.positions_m[0]:.3g}-{p.positions_m[-1]:.3g} m): "
                   f"one damper {'at each end' if p.ends == 2 else 'at one end'} "
                   f"{'suffices' if p.suffices else 'does NOT suffice'}")
+        if study.life is not None:
+            for line in study.life.words():
+                print(f"  life        : {line}")
     print(f"stored in {out}/" + (f"; wrote {args.json}" if args.json else ""))
     return 0

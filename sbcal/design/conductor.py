@@ -92,7 +92,14 @@ class Conductor:
     design_cycles : float
         Number of cycles at which the safe border line gives the stress limit.
     endurance_limit_pa : float or None
-        When given, the stress limit itself [Pa] (overrides the safe border line).
+        When given, the stress limit itself [Pa] (overrides the safe border line); also the service
+        life's endurance limit unless ``sn_endurance_limit_pa`` is given (``sbcal.design.life``).
+    sn_curve : tuple of (float, float)
+        Optional S-N curve for the service life: (cycles, stress amplitude [Pa]) points, cycles
+        increasing and stress decreasing, interpolated log-log and extrapolated by the end slopes;
+        empty: the CIGRE safe border line of ``fatigue_layers``.
+    sn_endurance_limit_pa : float or None
+        Optional stress amplitude [Pa] at or below which a cycle does no damage (service life).
     """
 
     name: str
@@ -117,6 +124,8 @@ class Conductor:
     endurance_limit_pa: float | None = None
     description: str = ""
     source: str = ""
+    sn_curve: tuple = ()
+    sn_endurance_limit_pa: float | None = None
 
     @property
     def tension_pct_rts(self) -> float:
@@ -149,6 +158,28 @@ def _choice(section: dict, path: str, key: str, full: str, choices, default: str
     if value not in choices:
         raise InputError(f"{path}: key '{full}': expected one of {', '.join(choices)}, got {value!r}")
     return value
+
+
+def _sn_curve(value, path: str) -> tuple:
+    """``[fatigue] sn_curve``: at least two [cycles, stress_pa] pairs, cycles increasing, stress decreasing."""
+    key = "fatigue.sn_curve"
+    if not isinstance(value, list) or len(value) < 2:
+        raise InputError(f"{path}: key '{key}': expected a list of at least two [cycles, stress_pa] pairs, "
+                         f"got {value!r}")
+    points = []
+    for j, pair in enumerate(value):
+        if not isinstance(pair, list) or len(pair) != 2:
+            raise InputError(f"{path}: key '{key}[{j}]': expected a pair [cycles, stress_pa], got {pair!r}")
+        points.append((_number(path, f"{key}[{j}][0]", pair[0], "pos"),
+                       _number(path, f"{key}[{j}][1]", pair[1], "pos")))
+    for j in range(1, len(points)):
+        if points[j][0] <= points[j - 1][0]:
+            raise InputError(f"{path}: key '{key}[{j}]': cycles must increase along the curve, "
+                             f"got {points[j][0]:g} after {points[j - 1][0]:g}")
+        if points[j][1] >= points[j - 1][1]:
+            raise InputError(f"{path}: key '{key}[{j}]': stress must decrease as cycles increase, "
+                             f"got {points[j][1]:g} Pa after {points[j - 1][1]:g} Pa")
+    return tuple(points)
 
 
 def parse_conductor(doc: dict, path: str = "<conductor>") -> Conductor:
@@ -199,12 +230,16 @@ def parse_conductor(doc: dict, path: str = "<conductor>") -> Conductor:
     cycles = _get(fat, path, "design_cycles", "fatigue.design_cycles", "pos", 5e8)
     limit = (_number(path, "fatigue.endurance_limit_pa", fat["endurance_limit_pa"], "pos")
              if "endurance_limit_pa" in fat else None)
+    sn_curve = _sn_curve(fat["sn_curve"], path) if "sn_curve" in fat else ()
+    sn_limit = (_number(path, "fatigue.sn_endurance_limit_pa", fat["sn_endurance_limit_pa"], "pos")
+                if "sn_endurance_limit_pa" in fat else None)
     return Conductor(
         name=name, description=description, source=path, tension_n=tension,
         wire_diameter_m=wire_d, wire_modulus_pa=wire_e,
         self_damping_k=k, self_damping_l=exps["l"], self_damping_m=exps["m"], self_damping_n=exps["n"],
         self_damping_label=label, wind_curve=curve, turbulence_intensity=iv, strouhal=strouhal,
         fatigue_layers=layers, design_cycles=cycles, endurance_limit_pa=limit,
+        sn_curve=sn_curve, sn_endurance_limit_pa=sn_limit,
         **v,
     )
 
@@ -226,7 +261,8 @@ def load_conductor(path) -> Conductor:
     InputError
         One line naming the file and key: a missing file or key, malformed TOML, a value that is
         not a number, not finite, not positive; both or neither of ``tension_n`` and
-        ``tension_pct_rts``; an unknown preset, wind curve or layer count.
+        ``tension_pct_rts``; an unknown preset, wind curve or layer count; an S-N curve whose cycles do
+        not increase or whose stresses do not decrease.
     """
     return parse_conductor(read_toml(path), str(Path(path)))
 

@@ -12,7 +12,7 @@ from .span import Impedance, SpanResult, _jsonable, _positions, energy_balance
 from .vibration import strouhal_band
 
 
-__all__ = ["Placement", "optimise_position"]
+__all__ = ["Placement", "position_grid", "optimise_position"]
 
 # ---------------------------------------------------------------------------------------------
 # Placement
@@ -62,6 +62,16 @@ class Placement:
                 "suffices": self.suffices}
 
 
+def position_grid(conductor: Conductor, *, ends: int = 1, wind=(1.0, 7.0), n_freq: int = 60, freq_hz=None,
+                  n: int = 40) -> np.ndarray:
+    """The default candidate positions [m]: ``n`` points from 5 % to 100 % of the band's shortest
+    wavelength (within the span, or half of it with dampers at both ends)."""
+    freq = strouhal_band(conductor, wind, n_freq)[0] if freq_hz is None else np.asarray(freq_hz, float)
+    lam_min = conductor.wave_speed_m_s / np.max(freq)
+    top = conductor.span_length_m / (ends if ends in (1, 2) else 1)
+    return np.linspace(0.05, 1.0, int(n)) * min(lam_min, 0.99 * top)
+
+
 def optimise_position(conductor: Conductor, impedance: Impedance, positions_m=None, *, ends: int = 1,
                       quantile: float = 0.1, wind=(1.0, 7.0), n_freq: int = 60, freq_hz=None,
                       wave: str = "travelling") -> Placement:
@@ -84,10 +94,7 @@ def optimise_position(conductor: Conductor, impedance: Impedance, positions_m=No
     if not 0 < quantile < 1:
         raise InputError(f"quantile: expected a number in (0, 1), got {quantile!r}")
     if positions_m is None:
-        freq = strouhal_band(conductor, wind, n_freq)[0] if freq_hz is None else np.asarray(freq_hz, float)
-        lam_min = conductor.wave_speed_m_s / np.max(freq)
-        top = conductor.span_length_m / (ends if ends in (1, 2) else 1)
-        positions_m = np.linspace(0.05, 1.0, 40) * min(lam_min, 0.99 * top)
+        positions_m = position_grid(conductor, ends=ends, wind=wind, n_freq=n_freq, freq_hz=freq_hz)
     pos = np.atleast_1d(np.asarray(positions_m, dtype=float))
     _positions(conductor, pos, ends)
     margins, medians, results = [], [], []

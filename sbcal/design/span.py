@@ -242,10 +242,13 @@ def _solve(bal: _Balance, shape):
     y_hi = d * (_CIGRE_ZERO if c.wind_curve == "cigre" else _TABLE_SEARCH_MAX)
     scale = np.broadcast_to(bal.a_w, shape)  # g is divided by the wind scale: O(1) values
 
-    def g(v):
+    def g_and_y(v):
         y, pd, _ = bal.evaluate(v)
         pw, pc = bal.conductor_powers(y)
-        return (pw - pc - pd) / scale
+        return (pw - pc - pd) / scale, y
+
+    def g(v):
+        return g_and_y(v)[0]
 
     v_lo, v_hi = bal.unknown_for(y_lo, shape), bal.unknown_for(y_hi, shape)
     if bal.linear:
@@ -254,8 +257,7 @@ def _solve(bal: _Balance, shape):
         found = ~below & ~none
     else:
         grid = np.linspace(v_lo - 2.0, v_hi + 2.0, _GRID)  # (K, S, F); +-2: the guess of ln B is rough
-        gk = np.array([g(v) for v in grid])
-        yk = np.array([bal.evaluate(v)[0] for v in grid])
+        gk, yk = (np.array(a) for a in zip(*(g_and_y(v) for v in grid)))  # one evaluation per grid point
         valid = (yk >= y_lo) & (yk <= y_hi)
         # + to -: a stable balance. The cell's upper end may pass the top of the search: the wind curve
         # is spent there (g < 0), and a balance just under the top would otherwise fall between points

@@ -18,6 +18,7 @@ from ..inference.store import owner, span_dirs
 from ..model.damper import Damper
 from .cable_run import RANGE_STATUS
 from .conductor import Conductor
+from .life import Life, plot_life, service_life
 from .placement import Placement, optimise_position
 from .span import _AMPLITUDE_FLOOR_M, SpanResult, _jsonable, _positions, _q, energy_balance
 from .vibration import _wind_check
@@ -118,6 +119,8 @@ class SpanStudy:
         Frequencies at which some damper's state lies beyond, or below, the calibrated curvature range:
         the median over draws of the largest curvature along its arms
         (:meth:`sbcal.design.cable_run.CableRun.range_status`, the rule of ``sbcal predict``).
+    life : Life or None
+        The service life under a wind climate (:func:`sbcal.design.life.service_life`), when asked.
     model_error : dict or None
         The calibration's residual scale the damper's impedance carries
         (:class:`sbcal.design.predict.ModelError` ``as_dict()``), None when off or not stored.
@@ -138,6 +141,7 @@ class SpanStudy:
     extrapolated_hz: tuple = ()
     below_range_hz: tuple = ()
     model_error: dict | None = None
+    life: Life | None = None
     warnings: tuple = ()
 
     @property
@@ -184,6 +188,7 @@ class SpanStudy:
         doc["worst_line"] = self.worst_line()
         doc["model_error"] = self.model_error
         doc["placement"] = self.placement.to_dict() if self.placement is not None else None
+        doc["life"] = self.life.to_dict() if self.life is not None else None
         doc["warnings"] = list(self.warnings)
         return doc
 
@@ -260,8 +265,8 @@ def _law_range(run, imp, result: SpanResult) -> tuple[dict, list]:
 
 def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int = 1, wind=(1.0, 7.0),
                n_freq: int = 60, n_draws: int = 200, seed: int = 0, optimise: bool = False, positions_m=None,
-               quantile: float = 0.1, wave: str = "travelling", search_draws: int = 40,
-               model_error: bool = True) -> SpanStudy:
+               quantile: float = 0.1, wave: str = "travelling", search_draws: int = 40, model_error: bool = True,
+               climate=None, across: float = 1.0) -> SpanStudy:
     """One conductor, one damper design from a stored cable fit (or none): the energy balance with
     posterior bands, the bare span beside it, and optionally the placement. Reads the cable run;
     never refits.
@@ -293,6 +298,11 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     model_error : bool
         Add the calibration's residual scale to the damper's impedance, as ``sbcal predict`` adds it
         to its bands (:mod:`sbcal.design.impedance`); a run that stores none gives a warning.
+    climate : Climate or str, optional
+        A wind climate (:func:`sbcal.design.life.parse_climate`: ``weibull:k=2.0,c=4.5`` or a CSV
+        histogram): the study then holds the service life with and without the dampers.
+    across : float
+        Share of the time the wind blows across the line (0, 1], for the life.
 
     Returns
     -------
@@ -308,16 +318,21 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     from .conductor import resolve_conductor
     from .impedance import impedance_from_cable
 
+    from .life import _check_across, parse_climate
+
     c = conductor if isinstance(conductor, Conductor) else resolve_conductor(conductor)
     run, dmp = _damper_source(damper, cable)
     _wind_check(wind)
+    if climate is not None:
+        climate, across = parse_climate(climate), _check_across(across)
     if run is None:
         if position_m is not None:
             raise InputError("position: a bare span has no damper position; give a damper with it")
         if optimise:
             raise InputError("optimise: the placement needs a damper")
         r = energy_balance(c, None, None, wind=wind, n_freq=n_freq, wave=wave)
-        return SpanStudy(result=r, warnings=r.warnings)
+        life = service_life(r, climate, across=across) if climate is not None else None
+        return SpanStudy(result=r, life=life, warnings=r.warnings)
     if position_m is None and not optimise:
         raise InputError("position: give the damper's distance from the suspension clamp [m] (or optimise it)")
     for xs in (position_m, positions_m):
@@ -346,6 +361,7 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
                      calibrated_curvature=curvature, extrapolated_hz=law_range["extrapolated"],
                      below_range_hz=law_range["below_range"],
                      model_error=imp.model_error.as_dict() if imp.model_error is not None else None,
+                     life=service_life(r, climate, across=across) if climate is not None else None,
                      warnings=tuple(r.warnings) + tuple(notes + law_notes))
 
 
@@ -359,7 +375,8 @@ def span_dir(study: SpanStudy, runs_dir=None) -> Path:
 
 def store_span(study: SpanStudy, directory=None, *, meta: dict | None = None, json_path=None) -> Path:
     """Write ``span.csv`` (per frequency, :meth:`SpanResult.to_frame`), ``span.png``
-    (:func:`plot_span`), ``placement.csv`` (with a placement) and, last, ``summary.json``
+    (:func:`plot_span`), ``placement.csv`` (with a placement), ``life.csv`` and ``life.png`` (with a
+    life, :meth:`sbcal.design.life.Life.to_frame`, :func:`sbcal.design.life.plot_life`) and, last, ``summary.json``
     (:meth:`SpanStudy.to_dict` and ``meta``), each atomically, into ``directory`` (default
     :func:`span_dir`); also the JSON at ``json_path``. Returns the directory."""
     from ..core._io import atomic_path, write_json
@@ -371,6 +388,10 @@ def store_span(study: SpanStudy, directory=None, *, meta: dict | None = None, js
         with atomic_path(d / "placement.csv", ".csv") as tmp:
             study.placement.to_frame().to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
     plot_span(study.result, d / "span.png", placement=study.placement)
+    if study.life is not None:
+        with atomic_path(d / "life.csv", ".csv") as tmp:
+            study.life.to_frame().to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
+        plot_life(study.life, d / "life.png")
     doc = dict(study.to_dict(), **(meta or {}))
     if json_path is not None:
         write_json(json_path, doc, indent=1, allow_nan=False)

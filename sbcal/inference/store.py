@@ -9,6 +9,7 @@
     <runs>/<damper>/cable-<state>/posterior.nc, summary.json   a cable state's law
     <runs>/<damper>/predict-<new>-<state>/                     a new damper from that cable (beside it)
     <runs>/span/<label>/                                       span studies
+    <runs>/design/<label>/                                     design searches (sbcal design)
 
 Inside a run directory the files are its writer's (:mod:`sbcal.inference.runs`,
 :func:`sbcal.inference.cable_fit.store_cable`, ...); ``summary.json`` is written last, so a directory
@@ -22,18 +23,19 @@ from pathlib import Path
 
 __all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "run_dirs", "point_fit_path", "data_path",
            "diagnose_path", "map_path", "cable_dir", "cable_dirs", "cable_state_of", "owner", "prediction_dir", "span_dir",
-           "span_dirs"]
+           "span_dirs", "design_dir", "design_dirs"]
 
 SUMMARY = "summary.json"
 POSTERIOR = "posterior.nc"
 _CABLE = "cable-"
 _SPAN = "span"
+_DESIGN = "design"
 
 
 def dampers(runs) -> list[str]:
-    """The dampers a store holds results of (its directories but the span studies'), sorted."""
+    """The dampers a store holds results of (its directories but the span studies' and designs'), sorted."""
     root = Path(runs)
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != _SPAN) if root.is_dir() else []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name not in (_SPAN, _DESIGN)) if root.is_dir() else []
 
 
 def damper_dir(runs, damper: str) -> Path:
@@ -113,4 +115,15 @@ def span_dir(runs, label: str) -> Path:
 def span_dirs(runs) -> list[Path]:
     """The finished span studies of a store."""
     root = Path(runs) / _SPAN
+    return [d for d in sorted(root.iterdir()) if (d / SUMMARY).is_file()] if root.is_dir() else []
+
+
+def design_dir(runs, label: str) -> Path:
+    """``<runs>/design/<label>``."""
+    return Path(runs) / _DESIGN / label
+
+
+def design_dirs(runs) -> list[Path]:
+    """The finished design searches of a store."""
+    root = Path(runs) / _DESIGN
     return [d for d in sorted(root.iterdir()) if (d / SUMMARY).is_file()] if root.is_dir() else []

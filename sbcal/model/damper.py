@@ -16,7 +16,7 @@ from ..core.errors import InputError
 
 
 __all__ = ["Damper", "GEOMETRY", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
-           "DEFAULT_TOLERANCE_PCT", "with_value"]
+           "DEFAULT_TOLERANCE_PCT", "with_value", "damper_toml"]
 
 GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
 """The damper's model geometry by name: masses [kg], inertias [kg m^2], offsets [m] of mass 1, mass 2
@@ -155,6 +155,33 @@ def with_value(damper: Damper, key: str, value: float, *, where: str | None = No
     except (TypeError, ValueError):
         x = value  # _number names the wrong type
     return replace(damper, **{field: _number(where or damper.source or "<damper>", file_key, x, _CHECKS[field])})
+
+
+def damper_toml(damper: Damper, *, comment: str = "") -> str:
+    """The damper file (``formats.md`` section 1) of ``damper``: what :func:`parse_damper` reads back
+    to an equal :class:`Damper` (but ``source``). Floats are written with ``repr`` (round-trip exact);
+    strings as JSON strings, which are TOML basic strings. Hand-written rather than a TOML writer
+    library: the file is five tables of numbers, and sbcal depends on none."""
+    import json
+
+    lines = [f"# {line}" for line in comment.splitlines()]
+    lines += [f"name = {json.dumps(damper.name)}"]
+    if damper.description:
+        lines.append(f"description = {json.dumps(damper.description)}")
+    table = None
+    for tbl, key, field, required, _ in _FIELDS:
+        value = getattr(damper, field)
+        if not required and value == 0.0:
+            continue
+        if tbl != table:
+            lines += ["", f"[{tbl}]"]
+            table = tbl
+        lines.append(f"{key} = {float(value)!r}")
+    if damper.tolerance:
+        lines += ["", "[tolerance]"]
+        keys = {f: k for k, f in FILE_KEYS.items()}
+        lines += [f"{json.dumps(keys[f])} = {float(v)!r}" for f, v in damper.tolerance]
+    return "\n".join(lines) + "\n"
 
 
 def _number(path: str, key: str, value, check: str) -> float:
