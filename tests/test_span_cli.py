@@ -258,3 +258,42 @@ def test_bands_widen_when_the_cable_posterior_is_wider(tmp_path):
         widths[runs] = np.quantile(ly, 0.95, axis=0) - np.quantile(ly, 0.05, axis=0)
     ratio = widths[3] / widths[24]
     assert np.all(ratio > 1.8) and 2.0 < np.median(ratio) < 4.0, ratio
+
+
+# --- the service life ------------------------------------------------------------------------------
+
+def test_cli_span_life_is_stored_printed_and_halves_with_twice_the_time_across(run, tmp_path, capsys):
+    out = tmp_path / "life"
+    argv = ["span", "--conductor", "drake", "--damper", str(run), "--position", "1.1", *FAST,
+            "--life", "--climate", "weibull:k=2.0,c=4.5", "--across", "0.5", "-o", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "life        : no damper:" in text and "life        : with dampers:" in text
+    doc = json.loads((out / "summary.json").read_text())["life"]
+    assert set(doc) >= {"climate", "across", "hours_per_year", "years_bare", "damage_per_year_bare", "years",
+                        "damage_per_year"}
+    assert doc["climate"] == "weibull:k=2,c=4.5" and doc["across"] == 0.5
+    assert set(doc["years"]) == {"median", "q05", "q95"} and doc["years"]["median"] > doc["years_bare"]
+    frame = pd.read_csv(out / "life.csv")
+    assert len(frame) == 12 and {"wind_m_s", "hours_per_year", "cycles_per_year", "damage_per_year_bare",
+                                 "damage_per_year_median"} <= set(frame)
+    assert (out / "life.png").stat().st_size > 1000
+    assert main(argv[:-4] + ["--across", "1.0", "-o", str(tmp_path / "life1")]) == 0
+    capsys.readouterr()
+    one = json.loads((tmp_path / "life1" / "summary.json").read_text())["life"]
+    assert one["years_bare"] == pytest.approx(doc["years_bare"] / 2, rel=1e-12)
+    assert one["years"]["median"] == pytest.approx(doc["years"]["median"] / 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("rows, message", [
+    ("wind_m_s,hours_per_year\n-1,100\n2,100\n", "negative"),
+    ("wind_m_s,hours_per_year\n1,5000\n2,5000\n", "8766"),
+])
+def test_cli_span_bad_climate_is_one_line_and_nothing_written(tmp_path, capsys, rows, message):
+    climate = tmp_path / "climate.csv"
+    climate.write_text(rows)
+    out = tmp_path / "span"
+    code = main(["span", "--conductor", "drake", "--lines", "12", "--life", "--climate", str(climate), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "climate.csv" in err and message in err, err
+    assert not out.exists()

@@ -14,7 +14,7 @@ from ..core.version import __version__
 from ..core.workers import one_blas_thread
 from .calibration import (add_bench, add_data, add_map, add_report, add_run, add_sample, add_simulate, cmd_bench,
                           cmd_data, cmd_map, cmd_report, cmd_run, cmd_sample, cmd_simulate)
-from .design import add_predict, add_span, cmd_predict, cmd_span
+from .design import add_design, add_predict, add_span, cmd_design, cmd_predict, cmd_span
 from .options import Parser
 from .physics import add_cable, add_diagnose, cmd_cable, cmd_diagnose
 
@@ -34,6 +34,7 @@ _COMMANDS = {
     "cable": (add_cable, cmd_cable),
     "predict": (add_predict, cmd_predict),
     "span": (add_span, cmd_span),
+    "design": (add_design, cmd_design),
 }
 
 

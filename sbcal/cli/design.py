@@ -7,10 +7,10 @@ import sys
 import numpy as np
 
 from ..core.errors import InputError
-from .options import parse_frequencies
+from .options import parse_frequencies, scale_options
 
 
-__all__ = ["add_predict", "cmd_predict", "add_span", "cmd_span"]
+__all__ = ["add_predict", "cmd_predict", "add_span", "cmd_span", "add_design", "cmd_design"]
 
 # --- predict -----------------------------------------------------------------------------------
 
@@ -233,3 +233,116 @@ def cmd_span(args) -> int:
                 print(f"  life        : {line}")
     print(f"stored in {out}/" + (f"; wrote {args.json}" if args.json else ""))
     return 0
+
+
+# --- design ------------------------------------------------------------------------------------
+
+def add_design(sub):
+    p = sub.add_parser("design", help="a damper designed for a line: the design that maximises the span's margin or life",
+                       description="Search a design space of damper-file fields (masses, arm lengths, offsets) for the "
+                                   "damper, built with a calibrated cable, that maximises the 10 %% quantile over the "
+                                   "cable posterior of the worst-case fatigue margin of a conductor span (or of its "
+                                   "service life), with the damper(s) at their best position (docs/design.md). "
+                                   "Stored as <runs>/design/<label>/ (best.toml, designs.csv, design.png, summary.json).")
+    p.add_argument("--conductor", required=True, metavar="NAME|PATH", help="bundled conductor or conductor TOML")
+    p.add_argument("--cable", required=True, metavar="RUN", help="stored cable fit (e.g. runs/damper1/cable-dry)")
+    p.add_argument("--damper", required=True, metavar="NAME|PATH",
+                   help="the starting damper (bundled name or TOML): the fields the space does not vary keep its values")
+    p.add_argument("--space", required=True, metavar="SPACE.toml",
+                   help="the design space: [vary] \"mass1.mass_kg\" = [1.0, 3.0] ...; [constraints] total_mass_kg_max ...")
+    p.add_argument("--objective", choices=("margin", "life"), default="margin",
+                   help="maximise the 10 %% quantile of the worst-case margin (default) or of the service life")
+    p.add_argument("--climate", metavar="SPEC", help="wind climate for --objective life (as sbcal span --climate)")
+    p.add_argument("--across", type=float, default=1.0, metavar="SHARE",
+                   help="share of the time the wind blows across the line (default 1.0)")
+    p.add_argument("--dampers", type=int, choices=(1, 2), default=1, metavar="N",
+                   help="span ends equipped: 1 (default) or 2")
+    p.add_argument("--budget", type=int, default=120, metavar="N", help="designs evaluated at most (default 120)")
+    p.add_argument("--wind", default="1:7", metavar="MIN:MAX", help="wind band [m/s] (default 1:7)")
+    p.add_argument("--lines", type=int, default=60, metavar="N",
+                   help="frequencies of the final evaluation (default 60, as sbcal span)")
+    p.add_argument("--draws", type=int, default=200, metavar="N",
+                   help="posterior draws of the final evaluation (default 200, as sbcal span)")
+    p.add_argument("--search-grid", default="20,30,12", metavar="DRAWS,LINES,POSITIONS",
+                   help="the cheaper grid each design of the search is evaluated on: posterior draws, lines of the "
+                        "band, candidate positions (default 20,30,12); the start and the best are then evaluated "
+                        "with --draws and --lines")
+    p.add_argument("--no-model-error", action="store_true",
+                   help="the cable posterior and tolerances alone, without the calibration's residual scale")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the optimiser and the draws (default 0)")
+    p.add_argument("-o", "--output", metavar="DIR",
+                   help="output directory (default <runs>/design/<label>/, <runs> the store holding the cable run)")
+    scale_options(p, "designs of a generation evaluated in parallel local processes")
+    return p
+
+
+def cmd_design(args) -> int:
+    from ..design.cable_run import load_cable_run
+    from ..design.conductor import resolve_conductor
+    from ..design.life import _check_across, parse_climate
+    from ..design.search import design
+    from ..design.search_store import design_dir, store_design
+    from ..design.space import load_space
+    from ..design.vibration import _wind_check
+    from ..model.damper import resolve_damper
+    from ..pipeline import executor_for
+
+    wind = _parse_wind(args.wind)
+    _wind_check(wind)
+    if args.draws < 2:
+        raise InputError(f"--draws {args.draws}: must be >= 2")
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    if args.objective == "life" and not args.climate:
+        raise InputError("--objective life: give the wind climate with --climate (e.g. weibull:k=2.0,c=4.5)")
+    grid = _parse_grid(args.search_grid)
+    climate = parse_climate(args.climate) if args.climate else None
+    across = _check_across(args.across)
+    conductor = resolve_conductor(args.conductor)
+    cable = load_cable_run(args.cable)
+    start = resolve_damper(args.damper)
+    space = load_space(args.space, start)
+    try:
+        with executor_for(args.scheduler) as executor:
+            res = design(conductor, cable.path, start, space, objective=args.objective, climate=climate, across=across,
+                         ends=args.dampers, budget=args.budget, seed=args.seed, workers=args.workers,
+                         executor=executor, wind=wind, n_freq=args.lines, n_draws=args.draws,
+                         model_error=not args.no_model_error, progress=not args.quiet, search=grid)
+    except InputError as e:
+        text = str(e)
+        for key, opt in (("budget: ", "--budget: "), ("climate: ", "--climate: "), ("objective: ", "--objective: ")):
+            text = opt + text[len(key):] if text.startswith(key) else text
+        raise InputError(text) from None
+    out = store_design(res, args.output or design_dir(res, start.name), meta={"made_by": args.command_line})
+    for w in res.warnings:
+        print(f"sbcal: warning: {w}", file=sys.stderr)
+    if not args.quiet:
+        what = "margin" if res.objective == "margin" else "service life [years]"
+        print(f"{conductor.name}: design of {start.name} with the {cable.damper} {cable.state} cable ({cable.law}); "
+              f"{len(space.fields)} free field(s), {len(res.records)} designs evaluated "
+              f"({res.optimiser['generations']} generations of {res.optimiser['popsize']})")
+        for name, rec in (("start", res.start), ("best", res.best)):
+            m = rec["margin"]
+            fields = ", ".join(f"{k} = {v:.4g}" for k, v in rec["fields"].items())
+            print(f"  {name:5s}: {fields}; total mass {rec['total_mass_kg']:.3g} kg; at {rec['position_m']:.3g} m: "
+                  f"{what} q10 {rec['objective']:.4g} (margin {m['median']:.3g} [{m['q05']:.3g}, {m['q95']:.3g}])"
+                  + ("  EXTRAPOLATED" if rec["extrapolated"] else ""))
+    same = "".join(f" {opt} {value}" for opt, value, default in (
+        ("--dampers", args.dampers, 1), ("--wind", args.wind, "1:7"), ("--lines", args.lines, 60),
+        ("--draws", args.draws, 200), ("--seed", args.seed, 0)) if value != default)
+    same += " --no-model-error" if args.no_model_error else ""
+    print(f"stored in {out}/ (sbcal span --conductor {args.conductor} --damper {out}/best.toml --cable {cable.path} "
+          f"--optimise{same} reproduces the best)")
+    return 0
+
+
+def _parse_grid(text: str):
+    from ..design.search import Search
+
+    try:
+        d, lines, pos = (int(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"--search-grid {text!r}: expected three integers DRAWS,LINES,POSITIONS, e.g. 20,30,12") from None
+    if d < 2 or lines < 2 or pos < 2:
+        raise InputError(f"--search-grid {text!r}: each of DRAWS, LINES, POSITIONS must be >= 2")
+    return Search(n_draws=d, n_freq=lines, n_positions=pos)

@@ -270,7 +270,7 @@ def _final_job(job):
 def design(conductor: Conductor, cable, start: Damper, space: DesignSpace, *, objective: str = "margin",
            climate=None, across: float = 1.0, ends: int = 1, budget: int = 120, seed: int = 0, workers: int = 1,
            executor=None, wind=(1.0, 7.0), n_freq: int = 60, n_draws: int = 200, search: Search = Search(),
-           model_error: bool = True) -> DesignResult:
+           model_error: bool = True, progress: bool = True) -> DesignResult:
     """Search the design space for the damper that maximises ``objective`` (module docstring).
 
     Parameters
@@ -299,6 +299,8 @@ def design(conductor: Conductor, cable, start: Damper, space: DesignSpace, *, ob
         the chosen designs.
     search : Search
         The cheaper grid of the search.
+    progress : bool
+        A progress bar over the designs.
 
     Returns
     -------
@@ -334,7 +336,7 @@ def design(conductor: Conductor, cable, start: Damper, space: DesignSpace, *, ob
     maxiter = max(0, int(budget) // (popsize * n) - 1)
     constraints = (NonlinearConstraint(lambda x: space.violations(space.damper(start, x)), -np.inf, 0.0)
                    if space.constraints else ())
-    with progress_bar("design", total=popsize * n * (maxiter + 1), unit="design") as bar:
+    with progress_bar("design" if progress else None, total=popsize * n * (maxiter + 1), unit="design") as bar:
         gens = _Generations(evaluate=evaluate, workers=workers, executor=executor, bar=bar)
         res = differential_evolution(_never, space.bounds, popsize=popsize, maxiter=maxiter, rng=rng, polish=False,
                                      init="latinhypercube", updating="deferred", workers=gens,

@@ -30,12 +30,12 @@ from ..model.damper import FILE_KEYS, Damper, with_value
 __all__ = ["CONSTRAINTS", "DesignSpace", "parse_space", "load_space"]
 
 CONSTRAINTS = {
-    "total_mass_kg_max": ("total mass [kg]", lambda d: d.total_mass, 1.0),
-    "total_mass_kg_min": ("total mass [kg]", lambda d: d.total_mass, -1.0),
-    "arm_length_sum_m_max": ("arm length sum [m]", lambda d: d.L1 + d.L2, 1.0),
-    "arm_length_sum_m_min": ("arm length sum [m]", lambda d: d.L1 + d.L2, -1.0),
+    "total_mass_kg_max": ("total mass", "kg", lambda d: d.total_mass, 1.0),
+    "total_mass_kg_min": ("total mass", "kg", lambda d: d.total_mass, -1.0),
+    "arm_length_sum_m_max": ("arm length sum", "m", lambda d: d.L1 + d.L2, 1.0),
+    "arm_length_sum_m_min": ("arm length sum", "m", lambda d: d.L1 + d.L2, -1.0),
 }
-"""Constraint name -> (what, value of a damper, sign): ``sign (value - limit) <= 0`` is feasible."""
+"""Constraint name -> (what, unit, value of a damper, sign): ``sign (value - limit) <= 0`` is feasible."""
 
 # properties of the calibrated messenger cable, not of the damper built with it
 _FIXED = {"cable.ej_static_nm2": "the cable's rigidity comes from its calibration",
@@ -79,7 +79,7 @@ class DesignSpace:
 
     def violations(self, damper: Damper) -> np.ndarray:
         """``sign (value - limit)`` per constraint, shape (n_constraints,): <= 0 where met."""
-        return np.array([CONSTRAINTS[n][2] * (CONSTRAINTS[n][1](damper) - lim) for n, lim in self.constraints])
+        return np.array([CONSTRAINTS[n][3] * (CONSTRAINTS[n][2](damper) - lim) for n, lim in self.constraints])
 
     def feasible(self, damper: Damper) -> bool:
         return bool(np.all(self.violations(damper) <= 1e-12))
@@ -100,10 +100,10 @@ class DesignSpace:
         if never.size == 0:
             raise InputError(f"{self.source}: key 'constraints': no design in the box meets them all together")
         name, limit = self.constraints[int(never[0])]
-        what, value, sign = CONSTRAINTS[name]
+        what, unit, value, sign = CONSTRAINTS[name]
         reach = sign * min(sign * value(self.damper(start, x)) for x in tries)
         raise InputError(f"{self.source}: key 'constraints.{name}': no design in the box meets it "
-                         f"({'least' if sign > 0 else 'largest'} {what} {reach:.4g}, limit {limit:g})")
+                         f"({'least' if sign > 0 else 'largest'} {what} {reach:.4g} {unit}, limit {limit:g} {unit})")
 
 
 def parse_space(doc: dict, start: Damper, path: str = "<space>") -> DesignSpace:

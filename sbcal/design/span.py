@@ -508,7 +508,7 @@ class SpanResult:
             "positions_m": list(self.positions_m), "ends": self.ends, "n_dampers": self.n_dampers, "wave": self.wave,
             "n_draws": self.n_draws, "limit_mpa": self.limit_pa * 1e-6,
             "margin": {"median": _jsonable(np.median(m)), "q05": _jsonable(np.quantile(m, 0.05)),
-                       "q95": _jsonable(np.quantile(m, 0.95)),
+                       "q10": _jsonable(np.quantile(m, 0.1)), "q95": _jsonable(np.quantile(m, 0.95)),
                        "median_db": _jsonable(20 * np.log10(np.median(m))) if np.median(m) > 0 else None},
             "margin_bare": _jsonable(self.margin_bare),
             "per_frequency": {k: (_jsonable(v.to_numpy(dtype=float)) if is_numeric_dtype(v) else [str(x) for x in v])

@@ -5,7 +5,11 @@ and no network. Per damper: data quality, then per test the fit (runs, mean, pos
 band), dissipated power, the parameter table with convergence diagnostics, corner and trace plots;
 across tests the amplitude map. Missing pieces (a test not sampled yet) are shown as missing. Each prediction of a new damper from a calibrated cable
 (``predict-*/``, :mod:`sbcal.design.predict`) gets a section of its own, and so does each span study
-(``span/*/``, :mod:`sbcal.design.span`: the stored figure and the margins to the fatigue limit).
+(``span/*/``, :mod:`sbcal.design.span`: the stored figures, the margins to the fatigue limit, the worst line
+and the service life) and each design search (``design/*/``, :mod:`sbcal.design.search`: the starting
+design against the chosen one, the stored figure, ``best.toml``). The page opens with a summary of
+them all (verdict and cable law per damper, each span's margins and life, each search's best design
+against its start), each row linking to its section.
 """
 
 from __future__ import annotations
@@ -295,34 +299,182 @@ def _predictions(damper_dir: Path, figs: Path) -> list:
     return out
 
 
-def _span_studies(runs: Path, figs: Path) -> list:
-    """The stored span studies (``<runs>/span/*/``, :mod:`sbcal.design.span`), ready for the page: key numbers
-    from ``summary.json`` and the stored figure copied beside the page (nothing is recomputed)."""
+def _copy_beside(src: Path, dest: Path) -> str | None:
+    """Copy a stored file beside the page (atomically); its name, or None when there is none."""
     import shutil
 
+    if not src.is_file():
+        return None
+    with atomic_path(dest, dest.suffix) as tmp:
+        shutil.copyfile(src, tmp)
+    return dest.name
+
+
+def _band(q, key_median="median") -> str:
+    """``median [q05, q95]`` of a stored quantile dict, engineering precision; ``—`` without one."""
+    if not q:
+        return "—"
+    return f"{eng(q.get(key_median))} [{eng(q.get('q05'))}, {eng(q.get('q95'))}]"
+
+
+def _years(v, unlimited: bool = True) -> str:
+    """A stored service life [years]: a null is an infinite life (no damage: JSON has no inf), shown
+    "unlimited" when the store says so (``unlimited``), else "—"."""
+    if v is None:
+        return "unlimited" if unlimited else "—"
+    return eng(v)
+
+
+def _years_band(q, unlimited: bool) -> str:
+    """``median [q05, q95]`` of a stored life; a null quantile is an infinite life (no damage)."""
+    if not q:
+        return "—"
+    return f"{_years(q.get('median'), unlimited)} [{_years(q.get('q05'))}, {_years(q.get('q95'))}]"
+
+
+def _life(life: dict | None) -> dict | None:
+    """The ``life`` of a span study's summary, as the page shows it (None without one)."""
+    if not life:
+        return None
+    dq = life.get("damage_per_year")
+    return {
+        "climate": life["climate"], "across": f"{100 * float(life['across']):g} %",
+        "hours": _fmt(life.get("hours_per_year"), 4),
+        "bare": _years(life.get("years_bare"), bool(life.get("unlimited_bare"))),
+        "damage_bare": _fmt(life.get("damage_per_year_bare"), 3) if not life.get("unlimited_bare") else "0",
+        "with": _years_band(life.get("years"), bool(life.get("unlimited"))) if life.get("years") is not None else None,
+        "damage": (f"{_fmt(dq.get('median'), 3)} [{_fmt(dq.get('q05'), 3)}, {_fmt(dq.get('q95'), 3)}]"
+                   if dq is not None else None),
+    }
+
+
+def _span_studies(runs: Path, figs: Path) -> list:
+    """The stored span studies (``<runs>/span/*/``, :mod:`sbcal.design.span`), ready for the page: key numbers
+    from ``summary.json`` (margins, worst line, service life) and the stored figures (``span.png``,
+    ``life.png``) copied beside the page (nothing is recomputed).
+
+    Raises
+    ------
+    InputError
+        One line: a summary that is not a span study's (:func:`sbcal.design.span_study.read_span`) or
+        whose numbers are malformed.
+    """
     from ..design.span_study import stored_spans
 
     out = []
     for d, doc in stored_spans(runs):
-        fig = None
-        if (d / "span.png").is_file():
-            fig = f"span_{d.name}.png"
-            with atomic_path(figs / fig, ".png") as tmp:
-                shutil.copyfile(d / "span.png", tmp)
-        m, c, ws, p = doc["margin"], doc["conductor"], doc.get("worst_stress_mpa") or {}, doc.get("placement")
-        out.append({
-            "name": d.name, "figure": fig, "conductor": c, "damper": doc.get("damper", "none"), "cable": doc.get("cable", ""),
-            "cable_damper": doc.get("cable_damper", ""), "state": doc.get("state", ""), "law": doc.get("law", ""),
-            "positions": ", ".join(f"{x:.3g}" for x in doc.get("positions_m", [])), "ends": doc.get("ends", 1),
-            "n_draws": doc.get("n_draws"), "limit": eng(doc.get("limit_mpa")),
-            "margin": f"{eng(m['median'])} [{eng(m['q05'])}, {eng(m['q95'])}]" if doc.get("positions_m") else "—",
-            "margin_bare": eng(doc.get("margin_bare")),
-            "stress": f"{eng(ws.get('median'))} [{eng(ws.get('q05'))}, {eng(ws.get('q95'))}]" if doc.get("positions_m") else "—",
-            "stress_bare": eng(ws.get("bare")),
-            "safe": m.get("q05") is not None and m["q05"] >= 1 if doc.get("positions_m") else None,
-            "placement": None if not p else {"best": eng(p["best_position_m"]), "margin": eng(p["best_margin"]),
-                                             "quantile": round(100 * p["quantile"]), "suffices": p["suffices"]},
-            "warnings": doc.get("warnings", [])})
+        try:
+            out.append(_span_item(d, doc, figs))
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise InputError(f"{d / 'summary.json'}: not a span study written by sbcal span "
+                             f"({type(e).__name__}: {e})") from None
+    return out
+
+
+def _span_item(d: Path, doc: dict, figs: Path) -> dict:
+    m, c, ws, p = doc["margin"], doc["conductor"], doc.get("worst_stress_mpa") or {}, doc.get("placement")
+    damped = bool(doc.get("positions_m"))
+    wl = doc.get("worst_line")
+    me = doc.get("model_error", "absent")  # a study stored before the key existed says nothing
+    if not damped or me == "absent":
+        model_error = None
+    elif me:
+        model_error = ("the bands hold the calibration's model error (its run means' rms residual: "
+                       + ", ".join(f"{a:g} mm p-p {100 * s:.1f} % / {ph:.1f}°" for a, s, ph in
+                                   zip(me["amplitude_mm_pp"], me["logmag_sd"], me["phase_sd_deg"])) + ")")
+    else:
+        model_error = "the bands hold the cable posterior and the tolerances only, not the calibration's model error"
+    return {
+        "name": d.name, "figure": _copy_beside(d / "span.png", figs / f"span_{d.name}.png"),
+        "life_figure": _copy_beside(d / "life.png", figs / f"life_{d.name}.png"),
+        "conductor": c, "damper": doc.get("damper", "none"), "cable": doc.get("cable", ""),
+        "cable_damper": doc.get("cable_damper", ""), "state": doc.get("state", ""), "law": doc.get("law", ""),
+        "positions": ", ".join(f"{x:.3g}" for x in doc.get("positions_m", [])), "ends": doc.get("ends", 1),
+        "n_draws": doc.get("n_draws"), "limit": eng(doc.get("limit_mpa")),
+        "margin": _band(m) if damped else "—", "margin_q10": eng(m.get("q10")) if damped else "—",
+        "margin_bare": eng(doc.get("margin_bare")),
+        "stress": _band(ws) if damped else "—",
+        "stress_bare": eng(ws.get("bare")),
+        "safe": m.get("q05") is not None and m["q05"] >= 1 if damped else None,
+        "placement": None if not p else {"best": eng(p["best_position_m"]), "margin": eng(p["best_margin"]),
+                                         "quantile": round(100 * p["quantile"]), "suffices": p["suffices"]},
+        "worst_line": None if not wl else {
+            "frequency": eng(wl["frequency_hz"]), "wind": eng(wl["wind_m_s"]),
+            "stress": _band(wl.get("stress_mpa")) if damped else None, "stress_bare": eng(wl.get("stress_bare_mpa"))},
+        "model_error": model_error,
+        "life": _life(doc.get("life")),
+        "warnings": doc.get("warnings", [])}
+
+
+def _design_searches(runs: Path, figs: Path, files: Path) -> list:
+    """The stored design searches (``<runs>/design/*/``, :mod:`sbcal.design.search`), ready for the page:
+    the starting and the chosen design from ``summary.json``, ``design.png`` copied beside the page and
+    ``best.toml`` and ``designs.csv`` copied into ``files/`` for their links (nothing is recomputed).
+
+    Raises
+    ------
+    InputError
+        One line: a summary that is not a design search's (:func:`sbcal.design.search_store.read_design`)
+        or whose numbers are malformed.
+    """
+    from ..design.search_store import stored_designs
+
+    out = []
+    for d, doc in stored_designs(runs):
+        try:
+            out.append(_design_item(d, doc, figs, files))
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise InputError(f"{d / 'summary.json'}: not a design search written by sbcal design "
+                             f"({type(e).__name__}: {e})") from None
+    return out
+
+
+def _design_item(d: Path, doc: dict, figs: Path, files: Path) -> dict:
+    life = doc["objective"] == "life"
+    start, best = doc["start"], doc["best"]
+    vary = doc.get("vary") or {}
+    fields = list(vary) or list(best["fields"])
+
+    def objective(rec):
+        return _years(rec.get("objective")) if life else eng(rec.get("objective"))
+
+    def column(rec):
+        return {"fields": [eng(rec["fields"].get(f)) for f in fields], "objective": objective(rec),
+                "margin": _band(rec["margin"]), "margin_q10": eng(rec["margin"].get("q10")),
+                "years": _years_band(rec.get("years"), True) if rec.get("years") is not None else "—",
+                "position": eng(rec.get("position_m")), "mass": eng(rec.get("total_mass_kg")),
+                "extrapolated": "yes" if rec.get("extrapolated") else "no", "bad": bool(rec.get("extrapolated"))}
+
+    opt = doc["optimiser"] or {}
+    q = doc.get("quantile", 0.1)
+    return {
+        "name": d.name, "conductor": doc.get("conductor", ""), "cable": doc.get("cable", ""),
+        "space": doc.get("space", ""), "ends": doc.get("ends", 1), "life": life, "objective": doc["objective"],
+        "quantile": f"{100 * float(q):g}", "climate": doc.get("climate"),
+        "across": f"{100 * float(doc['across']):g} %" if doc.get("across") is not None else "",
+        "vary": [(f, f"{eng(lo)}–{eng(hi)}") for f, (lo, hi) in vary.items()],
+        "constraints": [(k, eng(v) if isinstance(v, (int, float)) else str(v))
+                        for k, v in (doc.get("constraints") or {}).items()],
+        "fields": fields, "start": column(start), "best": column(best),
+        "best_damper": doc.get("best_damper", ""), "evaluations": doc["evaluations"], "seed": doc.get("seed"),
+        "optimiser": {"name": opt.get("name", "?"), "popsize": opt.get("popsize"), "generations": opt.get("generations"),
+                      "message": opt.get("message", ""), "search": opt.get("search") or {}, "final": opt.get("final") or {}},
+        "warnings": doc.get("warnings") or [], "made_by": doc.get("made_by", ""),
+        "figure": _copy_beside(d / "design.png", figs / f"design_{d.name}.png"),
+        "best_toml": _copy_beside(d / "best.toml", files / f"design_{d.name}_best.toml"),
+        "designs_csv": _copy_beside(d / "designs.csv", files / f"design_{d.name}_designs.csv"),
+    }
+
+
+def _cables(runs: Path, dname: str) -> list:
+    """A damper's stored cable laws for the first screen: ``[{state, law, converged}]`` from each
+    ``cable-<state>/summary.json`` (the summary only: the figure is the diagnosis section's)."""
+    from ..inference.runs import read_summary
+
+    out = []
+    for state, d in cable_dirs(runs, dname):
+        s = read_summary(d) or {}
+        out.append({"state": state, "law": s.get("law", "?"), "converged": s.get("converged")})
     return out
 
 
@@ -389,7 +541,9 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     """Write ``<out_dir>/index.html`` (and ``figures/``) from a run store; returns its path.
 
     Renders what the stages stored and recomputes nothing: the cleaning summary (``data.json``), the
-    posteriors, the diagnosis (``diagnose.json``) and the amplitude map (``map.json`` + ``map.nc``).
+    posteriors, the diagnosis (``diagnose.json``), the cable laws' summaries, the amplitude map (``map.json`` +
+    ``map.nc``), the predictions, the span studies and the design searches. Copies of stored files the
+    page links to (a design's ``best.toml``, ``designs.csv``) go to ``<out_dir>/files/``.
 
     Parameters
     ----------
@@ -455,9 +609,13 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                                 "branches": "two response branches, both kept" if branches.get("split") else ""})
             cv_fig = _cv_figure(data["quality"], figs / f"{dname}_cv.png")
         bench_note = "" if data else f"no cleaning stage stored ({data_path} is missing; 'sbcal run' writes it)"
+        sampled = [t for t in tests if t.summary]
         dampers.append({"name": dname, "tests": tests, "quality": quality, "cv_fig": cv_fig, "bench_note": bench_note,
                         "diagnosis": results.pop(("diagnosis", dname)),
-                        "predictions": results.pop(("predictions", dname))})
+                        "predictions": results.pop(("predictions", dname)),
+                        "n_sampled": len(sampled),
+                        "n_unconverged": sum(not t.summary.get("converged", False) for t in sampled),
+                        "cables": _cables(runs, dname)})
 
     say("report: amplitude map")
     docs = stored_maps(runs)
@@ -486,9 +644,12 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
                                    "wall_s": _fmt(t.summary.get("wall_s"), 3),
                                    "command": cfg.get("command", ""),
                                    "versions": ", ".join(f"{k} {v}" for k, v in t.summary.get("versions", {}).items())})
+    say("report: span studies and design searches")
+    spans = _span_studies(runs, figs)
+    designs = _design_searches(runs, figs, out / "files")
     env = Environment(loader=PackageLoader("sbcal.report", "templates"), autoescape=select_autoescape(["html"]))
     page = env.get_template("report.html").render(
-        dampers=dampers, spans=_span_studies(runs, figs), map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
+        dampers=dampers, spans=spans, designs=designs, map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
         created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
         runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
         eng=eng,

@@ -1,0 +1,125 @@
+"""``sbcal design`` and :func:`sbcal.design.search.design`: the damper design that maximises a span's margin.
+
+The stored cable posterior is the fast one of :func:`tests.test_predict._store` (draws about a known iwan5
+cable), its calibrated curvature range widened so that no design here is an extrapolation (its two
+tests reach only 1 mm p-p; the span bends the arms further). No cable fit runs here.
+"""
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from sbcal.cli import main
+from sbcal.design.conductor import resolve_conductor
+from sbcal.design.search import Search, design, evaluate_design
+from sbcal.design.space import parse_space
+from sbcal.model.damper import parse_damper, resolve_damper, with_value
+
+from .test_predict import _store
+
+GRID = Search(n_draws=6, n_freq=10, n_positions=6)  # about a second per design
+WIND = (1.0, 4.0)  # a band where the arm length has an interior optimum (about 0.35 m)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = _store(tmp_path_factory.mktemp("cable"))
+    s = json.loads((out / "summary.json").read_text())
+    for t in s["tests_reached"].values():
+        t["curvature_min"], t["curvature_max"] = 1e-6, 1e3
+    (out / "summary.json").write_text(json.dumps(s))
+    return out
+
+
+def test_design_finds_the_optimum_of_a_sweep(run):
+    """One free field (the clamp-to-mass-1 arm): the search lands within the sweep's resolution of the
+    sweep's best value, with an objective at least the sweep's best less its variation over one step."""
+    c, d = resolve_conductor("drake"), resolve_damper("damper1")
+    values = np.linspace(0.10, 0.40, 7)  # resolution 0.05 m
+    # the seed fixes the draws and the model errors: the sweep's and the search's objective are one function
+    sweep = np.array([evaluate_design(c, run, with_value(d, "cable.length1_m", v), wind=WIND, n_draws=GRID.n_draws,
+                                      n_freq=GRID.n_freq, n_positions=GRID.n_positions, seed=1)["objective"]
+                      for v in values])
+    k = int(np.argmax(sweep))
+    assert 0 < k < values.size - 1  # an interior optimum: the test is not about a bound
+    space = parse_space({"vary": {"cable.length1_m": [0.10, 0.40]}}, d, "space.toml")
+    res = design(c, run, d, space, budget=16, seed=1, wind=WIND, n_freq=8, n_draws=4, search=GRID)
+    best = max(res.records, key=lambda r: r["objective"])
+    assert abs(best["fields"]["cable.length1_m"] - values[k]) <= 0.05
+    step = max(abs(sweep[k] - sweep[k - 1]), abs(sweep[k] - sweep[k + 1]))
+    assert best["objective"] >= sweep[k] - step
+    assert len(res.records) == 16 and res.optimiser["generations"] == 2
+    # the starting damper is one of the designs and the reported best is at least the start
+    assert any(r["fields"]["cable.length1_m"] == d.L1 for r in res.records)
+    assert res.best["objective"] >= res.start["objective"]
+
+
+def test_cli_design_writes_a_damper_that_span_reproduces(run, tmp_path, capsys):
+    space = tmp_path / "space.toml"
+    space.write_text('[vary]\n"cable.length1_m" = [0.10, 0.40]\n[constraints]\narm_length_sum_m_max = 0.6\n')
+    out = tmp_path / "design"
+    argv = ["design", "--conductor", "drake", "--cable", str(run), "--damper", "damper1", "--space", str(space),
+            "--budget", "8", "--search-grid", "4,8,4", "--wind", "1:4", "--lines", "8", "--draws", "4",
+            "--workers", "1", "-o", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    # the same seed, the same designs and numbers (with two processes: a generation's jobs in any order)
+    assert main(argv[:-1] + [str(tmp_path / "again"), "--workers", "2"]) == 0
+    capsys.readouterr()
+    assert (tmp_path / "again" / "designs.csv").read_text() == (out / "designs.csv").read_text()
+    assert "start:" in text and "best :" in text and "reproduces the best" in text
+    doc = json.loads((out / "summary.json").read_text())
+    for key in ("start", "best", "optimiser", "evaluations", "seed"):
+        assert key in doc
+    for rec in (doc["start"], doc["best"]):
+        assert set(rec) >= {"fields", "objective", "margin", "position_m", "total_mass_kg", "extrapolated"}
+        assert set(rec["margin"]) == {"median", "q05", "q95", "q10"}
+    assert doc["evaluations"] == 8 and doc["best"]["objective"] >= doc["start"]["objective"]
+    best = parse_damper(tomllib.loads((out / "best.toml").read_text()))
+    assert best.L1 + best.L2 <= 0.6 and best.L1 == pytest.approx(doc["best"]["fields"]["cable.length1_m"], rel=1e-12)
+    assert (out / "designs.csv").read_text().count("\n") == 9 and (out / "design.png").stat().st_size > 1000
+    # sbcal span on the written file, with the same settings, gives the same objective
+    js = tmp_path / "span.json"
+    assert main(["span", "--conductor", "drake", "--damper", str(out / "best.toml"), "--cable", str(run), "--optimise",
+                 "--wind", "1:4", "--lines", "8", "--draws", "4", "--quiet", "-o", str(tmp_path / "span"),
+                 "--json", str(js)]) == 0
+    assert json.loads(js.read_text())["margin"]["q10"] == pytest.approx(doc["best"]["objective"], rel=1e-9)
+
+
+@pytest.mark.parametrize("space, message", [
+    ('[vary]\n"mass1.colour" = [1, 2]\n', r"space.toml: key 'vary.mass1.colour': unknown damper field"),
+    ('[vary]\n"mass1.mass_kg" = [3.0, 1.0]\n', r"key 'vary.mass1.mass_kg': empty or inverted bounds \[3, 1\]"),
+    ('[vary]\n"mass1.mass_kg" = [2.0, 2.0]\n', r"empty or inverted bounds"),
+    ('[vary]\n"mass1.mass_kg" = [-1.0, 2.0]\n', r"key 'mass1.mass_kg': must be > 0"),
+    ('[vary]\n"cable.ej_static_nm2" = [50, 150]\n', r"not a design field \(the cable's rigidity"),
+    ('[vary]\n', r"table '\[vary\]': missing or empty"),
+    ('[vary]\n"mass1.mass_kg" = [1.0, 3.0]\n[constraints]\ntotal_mass_kg_max = 2.0\n',
+     r"key 'constraints.total_mass_kg_max': no design in the box meets it \(least total mass 4\.712"),
+    ('[vary]\n"mass1.mass_kg" = [1.0, 3.0]\n[constraints]\nlightest = 2.0\n', r"'constraints.lightest': unknown constraint"),
+])
+def test_cli_design_bad_space_is_one_line(run, tmp_path, capsys, space, message):
+    p = tmp_path / "space.toml"
+    p.write_text(space)
+    out = tmp_path / "design"
+    code = main(["design", "--conductor", "drake", "--cable", str(run), "--damper", "damper1", "--space", str(p),
+                 "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith("sbcal: error: ")
+    assert __import__("re").search(message, err), err
+    assert not out.exists()
+
+
+def test_cli_design_bad_options(run, tmp_path, capsys):
+    p = tmp_path / "space.toml"
+    p.write_text('[vary]\n"mass1.mass_kg" = [1.0, 3.0]\n')
+    base = ["design", "--conductor", "drake", "--cable", str(run), "--damper", "damper1", "--space", str(p),
+            "-o", str(tmp_path / "d")]
+    for extra, message in ((["--budget", "3"], "--budget: expected an integer >= 8"),
+                           (["--objective", "life"], "--objective life: give the wind climate"),
+                           (["--search-grid", "6,10"], "--search-grid '6,10': expected three integers")):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "d").exists()
