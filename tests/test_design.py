@@ -123,3 +123,24 @@ def test_cli_design_bad_options(run, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "d").exists()
+
+
+def test_life_objective_is_the_life_q10_at_the_best_position(run):
+    """With the life objective the score is the 10 % quantile of the service life [years] where the
+    margin is best, and the reported life equals sbcal span's life for the same damper there."""
+    from sbcal.design.life import parse_climate
+    from sbcal.design.span_study import span_study
+
+    c, d = resolve_conductor("drake"), resolve_damper("damper1")
+    climate = parse_climate("weibull:k=2.0,c=3.0")
+    space = parse_space({"vary": {"cable.length1_m": [0.10, 0.40]}}, d, "space.toml")
+    res = design(c, run, d, space, objective="life", climate=climate, across=0.5, budget=8, seed=0, wind=WIND,
+                 n_freq=8, n_draws=4, search=Search(n_draws=4, n_freq=8, n_positions=4))
+    for rec in res.records:
+        assert rec["objective"] == rec["years"]["q10"] and rec["years"]["q10"] > 0
+    assert res.best["objective"] >= res.start["objective"] and res.summary()["objective"] == "life"
+    study = span_study(c, res.best_damper, cable=run, optimise=True, wind=WIND, n_freq=8, n_draws=4, climate=climate,
+                       across=0.5)
+    years = np.quantile(1.0 / study.life.damage_draws, [0.1, 0.5])
+    assert res.best["years"]["q10"] == pytest.approx(years[0], rel=1e-9)
+    assert res.best["years"]["median"] == pytest.approx(years[1], rel=1e-9)

@@ -427,6 +427,9 @@ def test_impedance_for_the_span(run):
         np.testing.assert_allclose(k[i], one[0], rtol=1e-12)
     np.testing.assert_array_equal(pickle.loads(pickle.dumps(imp))(f, amp), k)
     np.testing.assert_array_equal(imp(f, amp[:1]), imp(f, np.repeat(amp[:1], imp.n_draws, axis=0)))
+    # K trial amplitudes in one solve: the same as K calls
+    trials = np.stack([amp, 0.5 * amp, amp[:1].repeat(imp.n_draws, axis=0)])
+    np.testing.assert_array_equal(imp.stacked(f, trials), np.array([imp(f, a) for a in trials]))
     r = energy_balance(resolve_conductor("drake"), imp, 1.0, n_freq=4)
     assert r.ymax_m.shape == (imp.n_draws, 4) and np.isfinite(r.ymax_m).any()
 

@@ -297,3 +297,21 @@ def test_cli_span_bad_climate_is_one_line_and_nothing_written(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "climate.csv" in err and message in err, err
     assert not out.exists()
+
+
+def test_an_impedance_without_stacked_gives_the_same_balance(run):
+    """The balance evaluates its grid of trial states in one call when the impedance can (``stacked``),
+    else state by state: the same roots either way."""
+    class Plain:  # the Impedance protocol only
+        def __init__(self, imp):
+            self.imp = imp
+
+        def __call__(self, freq_hz, amplitude_m):
+            return self.imp(freq_hz, amplitude_m)
+
+    c = resolve_conductor("drake")
+    imp = impedance_from_cable(run, "damper1", n_draws=4)
+    a = energy_balance(c, imp, 1.1, n_freq=6)
+    b = energy_balance(c, Plain(imp), 1.1, n_freq=6)
+    np.testing.assert_array_equal(a.ymax_m, b.ymax_m)
+    np.testing.assert_array_equal(a.status, b.status)

@@ -27,6 +27,8 @@ from .predict import ModelError, _draw_checks, model_error_of
 
 __all__ = ["CableImpedance", "impedance_from_cable"]
 
+_CHUNK = 40_000  # (state, line) pairs per cable solve of :meth:`CableImpedance.stacked`: bounds its memory
+
 # --- the damper as a span sees it ------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
@@ -77,11 +79,32 @@ class CableImpedance:
 
     def __call__(self, freq_hz, amplitude_m):
         f, a = self._grid(freq_hz, amplitude_m)
-        k = self.model.dynamic_stiffness(self.damper, f, a, **self.params)
+        return self._with_error(self.model.dynamic_stiffness(self.damper, f, a, **self.params), a)
+
+    def stacked(self, freq_hz, amplitude_m):
+        """:meth:`__call__` at K trial amplitudes at once: ``amplitude_m`` (K, S or 1, F) [m, 0-peak]
+        -> (K, S, F). One cable solve per chunk of at most :data:`_CHUNK` (state, line) pairs instead
+        of K solves (each solve has a fixed cost that dominates small posteriors)."""
+        f = np.atleast_1d(np.asarray(freq_hz, float))
+        a = np.asarray(amplitude_m, float)
+        a = 2e3 * np.broadcast_to(a, (a.shape[0], self.n_draws, f.size))
+        step = max(1, _CHUNK // (self.n_draws * f.size))
+        out = []
+        for k0 in range(0, a.shape[0], step):
+            blk = a[k0:k0 + step]
+            n = blk.shape[0]
+            params = {name: np.tile(v, n) for name, v in self.params.items()}
+            k = self.model.dynamic_stiffness(self.damper, f, blk.reshape(-1, f.size), **params)
+            out.append(self._with_error(k.reshape(blk.shape), blk))
+        return np.concatenate(out)
+
+    def _with_error(self, k, amplitude_mm):
+        """``k`` (..., S, F) with the model error at the clamp amplitudes [mm p-p] of the same shape: the
+        same standard-normal pair per (draw, line) whatever the amplitude (module docstring)."""
         if self.model_error is None:
             return k
-        z = np.random.default_rng([self.error_seed, f.size]).standard_normal((2, self.n_draws, f.size))
-        sd_mag, sd_phase = self.model_error.at(a)
+        z = np.random.default_rng([self.error_seed, k.shape[-1]]).standard_normal((2, self.n_draws, k.shape[-1]))
+        sd_mag, sd_phase = self.model_error.at(amplitude_mm)
         # a passive damper's loss cannot change sign: the phase error stops at 0 and at 180 deg
         phase = np.clip(np.angle(k) + z[1] * sd_phase, 0.0, np.pi)
         return np.abs(k) * np.exp(z[0] * sd_mag) * np.exp(1j * phase)

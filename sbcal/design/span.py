@@ -132,15 +132,27 @@ class _Balance:
         self.linear = bool(np.array_equal(k1, self.stiffness(3 * a)))
 
     def stiffness(self, amplitude):
-        """K* of shape (S, F) (or (1, F)) at clamp amplitudes (S or 1, F); checked."""
-        k = np.asarray(self.impedance(self.freq, np.maximum(amplitude, _AMPLITUDE_FLOOR_M)))
-        if k.ndim != 2 or k.shape[1] != self.freq.size or (self.n_sets and k.shape[0] not in (1, self.n_sets)):
+        """K* of shape (S, F) (or (1, F)) at clamp amplitudes (S or 1, F); checked. Amplitudes with a
+        leading axis (K, S or 1, F) (a grid of trial states) give (K, S, F): in one call when the
+        impedance has a ``stacked`` method of that signature, else one call per k."""
+        amplitude = np.maximum(amplitude, _AMPLITUDE_FLOOR_M)
+        if np.ndim(amplitude) == 3:
+            stacked = getattr(self.impedance, "stacked", None)
+            k = (np.asarray(stacked(self.freq, amplitude)) if stacked is not None
+                 else np.array([self._checked(self.impedance(self.freq, a)) for a in amplitude]))
+            return self._checked(k, stacked=True)
+        return self._checked(self.impedance(self.freq, amplitude))
+
+    def _checked(self, k, stacked=False):
+        k = np.asarray(k)
+        core = k.shape[1:] if stacked else k.shape
+        if len(core) != 2 or core[1] != self.freq.size or (self.n_sets and core[0] not in (1, self.n_sets)):
             raise InputError(f"impedance: returned shape {k.shape}, expected (S, {self.freq.size})")
         if not np.all(np.isfinite(k)):
             raise InputError("impedance: returned a non-finite dynamic stiffness")
         bad = k.imag < -1e-9 * np.abs(k)
         if bad.any():
-            f = self.freq[np.nonzero(bad)[1][0]]
+            f = self.freq[np.nonzero(bad)[-1][0]]
             raise InputError(f"impedance: Im K* < 0 at {f:.3g} Hz: the damper would feed power into the span "
                              "(not passive; check the time convention exp(+i omega t))")
         return k
@@ -257,7 +269,7 @@ def _solve(bal: _Balance, shape):
         found = ~below & ~none
     else:
         grid = np.linspace(v_lo - 2.0, v_hi + 2.0, _GRID)  # (K, S, F); +-2: the guess of ln B is rough
-        gk, yk = (np.array(a) for a in zip(*(g_and_y(v) for v in grid)))  # one evaluation per grid point
+        gk, yk = g_and_y(grid)  # the whole grid at once (an impedance with ``stacked`` evaluates it in one call)
         valid = (yk >= y_lo) & (yk <= y_hi)
         # + to -: a stable balance. The cell's upper end may pass the top of the search: the wind curve
         # is spent there (g < 0), and a balance just under the top would otherwise fall between points
