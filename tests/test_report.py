@@ -290,13 +290,19 @@ def full_store(run_store, diagnosis_doc, tmp_path_factory):
     return runs
 
 
-def test_the_first_screen_is_the_headline(full_store, tmp_path):
+@pytest.fixture(scope="module")
+def full_report(full_store, tmp_path_factory):
+    """``(report directory, page)`` of the full store, built once."""
+    out = tmp_path_factory.mktemp("full_report") / "rep"
+    assert main(["report", "--runs", str(full_store), "-o", str(out)]) == 0
+    return out, (out / "index.html").read_text()
+
+
+def test_the_first_screen_is_the_headline(full_report):
     """Before any per-test section: per damper the verdict and the cable law, per span the margins and
     the life with and without dampers, per design search the best design against the start; every row
     links to its section."""
-    out = tmp_path / "rep"
-    assert main(["report", "--runs", str(full_store), "-o", str(out)]) == 0
-    page = (out / "index.html").read_text()
+    out, page = full_report
     first = _section(page, "summary", "How to read this page")
     assert page.index('id="summary"') < page.index('id="damper1-0.2-0.2"') < page.index('id="spans"')
     # per damper
@@ -322,10 +328,8 @@ def test_the_first_screen_is_the_headline(full_store, tmp_path):
     assert "figures/damper1_law.png" in p.imgs
 
 
-def test_the_span_section_shows_the_life(full_store, tmp_path):
-    out = tmp_path / "rep"
-    assert main(["report", "--runs", str(full_store), "-o", str(out)]) == 0
-    page = (out / "index.html").read_text()
+def test_the_span_section_shows_the_life(full_report):
+    out, page = full_report
     damped = _section(page, "span-drake-damper1-dry", "<h2")
     assert "<td>no damper</td><td>3.22</td><td>0.311</td>" in damped
     assert "<td>187 [96.2, unlimited]</td><td>0.00534 [0, 0.0104]</td>" in damped
@@ -342,10 +346,8 @@ def test_the_span_section_shows_the_life(full_store, tmp_path):
     assert "Worst line: 46 Hz (wind 7 m/s), stress 22.9 MPa (limit 8.73 MPa)" in bare
 
 
-def test_the_design_section(full_store, tmp_path):
-    out = tmp_path / "rep"
-    assert main(["report", "--runs", str(full_store), "-o", str(out)]) == 0
-    page = (out / "index.html").read_text()
+def test_the_design_section(full_report):
+    out, page = full_report
     p = _Refs()
     p.feed(page)
     assert "Design searches (sbcal design)" in p.headings

@@ -457,8 +457,9 @@ def _design_item(d: Path, doc: dict, figs: Path, files: Path) -> dict:
                         for k, v in (doc.get("constraints") or {}).items()],
         "fields": fields, "start": column(start), "best": column(best),
         "best_damper": doc.get("best_damper", ""), "evaluations": doc["evaluations"], "seed": doc.get("seed"),
-        "optimiser": {"name": opt.get("name", "?"), "popsize": opt.get("popsize"), "generations": opt.get("generations"),
-                      "message": opt.get("message", ""), "search": opt.get("search") or {}, "final": opt.get("final") or {}},
+        "optimiser": {"name": opt.get("name", "?"), "popsize": opt.get("popsize"),
+                      "generations": opt.get("generations"), "message": opt.get("message", ""),
+                      "search": opt.get("search") or {}, "final": opt.get("final") or {}},
         "warnings": doc.get("warnings") or [], "made_by": doc.get("made_by", ""),
         "figure": _copy_beside(d / "design.png", figs / f"design_{d.name}.png"),
         "best_toml": _copy_beside(d / "best.toml", files / f"design_{d.name}_best.toml"),
@@ -649,7 +650,8 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     designs = _design_searches(runs, figs, out / "files")
     env = Environment(loader=PackageLoader("sbcal.report", "templates"), autoescape=select_autoescape(["html"]))
     page = env.get_template("report.html").render(
-        dampers=dampers, spans=spans, designs=designs, map_fig=map_fig, map_rows=map_rows, map_note=map_note, provenance=provenance,
+        dampers=dampers, spans=spans, designs=designs, map_fig=map_fig, map_rows=map_rows, map_note=map_note,
+        provenance=provenance,
         created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
         runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
         eng=eng,
