@@ -15,7 +15,8 @@ from pathlib import Path
 from .errors import InputError
 
 
-__all__ = ["read_toml", "name_and_description", "finite_number", "atomic_path", "write_json", "bundled_names", "resolve_bundled"]
+__all__ = ["read_toml", "name_and_description", "finite_number", "atomic_path", "write_json", "read_summary",
+           "bundled_names", "resolve_bundled"]
 
 
 def read_toml(path) -> dict:
@@ -107,6 +108,26 @@ def write_json(path, doc, **dumps) -> None:
 
     with atomic_path(path, ".json") as tmp:
         tmp.write_text(json.dumps(doc, **dumps) + "\n", encoding="utf-8")
+
+
+def read_summary(directory, keys, what: str, writer: str) -> dict:
+    """The ``summary.json`` of a stored result (``what``, e.g. "span study", written by ``writer``),
+    checked for its main ``keys``; one-line InputError when missing, not JSON or not such a result."""
+    import json
+
+    p = Path(directory) / "summary.json"
+    if not p.is_file():
+        raise InputError(f"{directory}: no stored {what} (summary.json missing)")
+    try:
+        doc = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise InputError(f"{p}: not valid JSON ({e.msg}, line {e.lineno})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{p}: expected a JSON object (not a {what} written by {writer})")
+    for key in keys:
+        if key not in doc:
+            raise InputError(f"{p}: key '{key}': missing (not a {what} written by {writer})")
+    return doc
 
 
 def bundled_names(folder: str) -> list[str]:

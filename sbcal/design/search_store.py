@@ -3,14 +3,12 @@
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
 from ..inference.store import design_dir as store_design_dir
 from ..inference.store import design_dirs, owner
@@ -97,17 +95,10 @@ def store_design(result: DesignResult, directory, *, meta: dict | None = None) -
 
 def read_design(directory) -> dict:
     """The ``summary.json`` of a stored design search, checked for its main keys."""
-    p = Path(directory) / "summary.json"
-    if not p.is_file():
-        raise InputError(f"{directory}: no stored design search (summary.json missing)")
-    try:
-        doc = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"{p}: not valid JSON ({e.msg}, line {e.lineno})") from None
-    for key in ("start", "best", "objective", "optimiser", "evaluations"):
-        if key not in doc:
-            raise InputError(f"{p}: key '{key}': missing (not a design search written by sbcal design)")
-    return doc
+    from ..core._io import read_summary
+
+    return read_summary(directory, ("start", "best", "objective", "optimiser", "evaluations"), "design search",
+                        "sbcal design")
 
 
 def stored_designs(runs_dir) -> list:

@@ -401,19 +401,10 @@ def store_span(study: SpanStudy, directory=None, *, meta: dict | None = None, js
 
 def read_span(directory) -> dict:
     """The ``summary.json`` of a stored span study (:func:`store_span`), checked for its main keys."""
-    import json
+    from ..core._io import read_summary
 
-    p = Path(directory) / "summary.json"
-    if not p.is_file():
-        raise InputError(f"{directory}: no stored span study (summary.json missing)")
-    try:
-        doc = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"{p}: not valid JSON ({e.msg}, line {e.lineno})") from None
-    for key in ("label", "conductor", "margin", "margin_bare", "per_frequency"):
-        if key not in doc:
-            raise InputError(f"{p}: key '{key}': missing (not a span study written by sbcal span)")
-    return doc
+    return read_summary(directory, ("label", "conductor", "margin", "margin_bare", "per_frequency"), "span study",
+                        "sbcal span")
 
 
 def stored_spans(runs_dir) -> list:
