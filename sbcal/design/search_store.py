@@ -20,11 +20,12 @@ __all__ = ["design_label", "design_dir", "plot_design", "store_design", "read_de
 
 
 def design_label(result: DesignResult, start_name: str) -> str:
-    """``<conductor>-<start damper>-<cable damper>-<state>[-2ends][-life]``."""
+    """``<conductor>-<start damper>[-<cable damper>]-<state>[-2ends][-life]`` (the cable damper named when
+    it is not the starting one, as a span study's label)."""
     cable = Path(result.cable)
     damper = cable.parent.name
     state = cable.name.removeprefix("cable-")
-    parts = [result.conductor.name, start_name, damper, state]
+    parts = [result.conductor.name, start_name] + ([damper] if damper != start_name else []) + [state]
     if result.ends == 2:
         parts.append("2ends")
     if result.objective == "life":
