@@ -144,3 +144,18 @@ def test_life_objective_is_the_life_q10_at_the_best_position(run):
     years = np.quantile(1.0 / study.life.damage_draws, [0.1, 0.5])
     assert res.best["years"]["q10"] == pytest.approx(years[0], rel=1e-9)
     assert res.best["years"]["median"] == pytest.approx(years[1], rel=1e-9)
+
+
+def test_unlimited_lives_are_the_best_objective_not_a_nan():
+    """A design under which no draw takes damage has an infinite life: its quantiles stay inf (no
+    inf - inf interpolation), the optimiser ranks it first, and the summary stores null."""
+    from sbcal.design.search import _minimised, _quantiles
+    from sbcal.design.search_store import _clean
+
+    q = _quantiles(np.r_[np.full(5, 30.0), np.full(5, np.inf)])
+    assert q["q10"] == 30.0 and q["q95"] == np.inf and np.isfinite(q["q05"])
+    all_inf = _quantiles(np.full(8, np.inf))
+    assert all(v == np.inf for v in all_inf.values())
+    assert _minimised({"objective": np.inf, "extrapolated": False}) < _minimised({"objective": 1e3, "extrapolated": False})
+    assert _minimised({"objective": np.nan, "extrapolated": False}) > _minimised({"objective": 0.0, "extrapolated": False})
+    assert _clean({"years": all_inf})["years"]["q10"] is None

@@ -325,7 +325,8 @@ def cmd_design(args) -> int:
             m = rec["margin"]
             fields = ", ".join(f"{k} = {v:.4g}" for k, v in rec["fields"].items())
             print(f"  {name:5s}: {fields}; total mass {rec['total_mass_kg']:.3g} kg; at {rec['position_m']:.3g} m: "
-                  f"{what} q10 {rec['objective']:.4g} (margin {m['median']:.3g} [{m['q05']:.3g}, {m['q95']:.3g}])"
+                  f"{what} q10 {_number_or_unlimited(rec['objective'])} (margin {m['median']:.3g} [{m['q05']:.3g}, "
+                  f"{m['q95']:.3g}])"
                   + ("  EXTRAPOLATED" if rec["extrapolated"] else ""))
     same = "".join(f" {opt} {value}" for opt, value, default in (
         ("--dampers", args.dampers, 1), ("--wind", args.wind, "1:7"), ("--lines", args.lines, 60),
@@ -334,6 +335,10 @@ def cmd_design(args) -> int:
     print(f"stored in {out}/ (sbcal span --conductor {args.conductor} --damper {out}/best.toml --cable {cable.path} "
           f"--optimise{same} reproduces the best)")
     return 0
+
+
+def _number_or_unlimited(x: float) -> str:
+    return f"{x:.4g}" if np.isfinite(x) else "unlimited"
 
 
 def _parse_grid(text: str):

@@ -62,8 +62,11 @@ class Search:
 
 
 def _quantiles(x) -> dict:
+    """5 %, 10 %, 50 %, 95 % over draws; with infinite values (unlimited lives) without interpolation,
+    which would turn inf - inf into NaN."""
     x = np.asarray(x, float)
-    q05, q10, q50, q95 = np.quantile(x, [0.05, QUANTILE, 0.5, 0.95])
+    method = "inverted_cdf" if np.isinf(x).any() else "linear"
+    q05, q10, q50, q95 = np.quantile(x, [0.05, QUANTILE, 0.5, 0.95], method=method)
     return {"median": float(q50), "q05": float(q05), "q95": float(q95), "q10": float(q10)}
 
 
