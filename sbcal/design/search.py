@@ -81,6 +81,18 @@ def _resonances_hz(imp, freq, amplitude_m) -> list:
     return [r.freq_hz[1] for r in _resonances(fine, k, x0, 2e3 * amplitude_m)]
 
 
+def _scored(result, position_m: float, damper: Damper, life=None) -> dict:
+    """One design's record at its position: the margin's quantiles and, with a life
+    (:class:`sbcal.design.life.Life`), the life's; the objective is the q10 of the life when there is
+    one, else of the margin. The one scoring of the search and of the final evaluation."""
+    out = {"margin": _quantiles(result.margin), "position_m": position_m, "total_mass_kg": damper.total_mass}
+    out["objective"] = out["margin"]["q10"]
+    if life is not None:
+        out["years"] = _quantiles(life.years_draws)
+        out["objective"] = out["years"]["q10"]
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class _Evaluate:
     """One design's objective on the search grid: a picklable job of :func:`run_jobs`."""
@@ -123,6 +135,7 @@ def evaluate_design(conductor: Conductor, cable, damper: Damper, *, objective: s
     """
     from .cable_run import load_cable_run
     from .impedance import impedance_from_cable
+    from .life import service_life
     from .placement import optimise_position, position_grid
     from .span_study import _law_range
 
@@ -131,15 +144,8 @@ def evaluate_design(conductor: Conductor, cable, damper: Damper, *, objective: s
     grid = position_grid(conductor, ends=ends, wind=wind, n_freq=n_freq, n=n_positions)
     place = optimise_position(conductor, imp, grid, ends=ends, quantile=QUANTILE, wind=wind, n_freq=n_freq)
     r = place.best
-    out = {"margin": _quantiles(r.margin), "position_m": place.best_position_m,
-           "total_mass_kg": damper.total_mass}
-    out["objective"] = out["margin"]["q10"]
-    if objective == "life":
-        from .life import service_life
-
-        years = service_life(r, climate, across=across).years_draws
-        out["years"] = _quantiles(years)
-        out["objective"] = out["years"]["q10"]
+    life = service_life(r, climate, across=across) if objective == "life" else None
+    out = _scored(r, place.best_position_m, damper, life)
     law_range, _ = _law_range(run, imp, r)
     out["extrapolated"] = bool(law_range["extrapolated"] or law_range["below_range"])
     xd = np.nanmedian(r.damper_amplitude_m)
@@ -252,16 +258,10 @@ def _final(conductor, cable, damper, *, objective, climate, across, ends, wind, 
     from .span_study import span_study
 
     study = span_study(conductor, damper, cable=cable, ends=ends, wind=wind, n_freq=n_freq, n_draws=n_draws,
-                       seed=seed, optimise=True, model_error=model_error)
-    r = study.result
-    out = {"margin": _quantiles(r.margin), "position_m": study.placement.best_position_m,
-           "total_mass_kg": damper.total_mass, "extrapolated": bool(study.extrapolated_hz or study.below_range_hz)}
-    out["objective"] = out["margin"]["q10"]
-    if objective == "life":
-        from .life import service_life
-
-        out["years"] = _quantiles(service_life(r, climate, across=across).years_draws)
-        out["objective"] = out["years"]["q10"]
+                       seed=seed, optimise=True, model_error=model_error,
+                       climate=climate if objective == "life" else None, across=across)
+    out = _scored(study.result, study.placement.best_position_m, damper, study.life)
+    out["extrapolated"] = bool(study.extrapolated_hz or study.below_range_hz)
     return out
 
 

@@ -18,7 +18,7 @@ from ..inference.store import owner, span_dirs
 from ..model.damper import Damper
 from .cable_run import RANGE_STATUS
 from .conductor import Conductor
-from .life import Life, plot_life, service_life
+from .life import Life, _check_across, parse_climate, plot_life, service_life
 from .placement import Placement, optimise_position
 from .span import _AMPLITUDE_FLOOR_M, SpanResult, _jsonable, _positions, _q, energy_balance
 from .vibration import _wind_check
@@ -317,8 +317,6 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     """
     from .conductor import resolve_conductor
     from .impedance import impedance_from_cable
-
-    from .life import _check_across, parse_climate
 
     c = conductor if isinstance(conductor, Conductor) else resolve_conductor(conductor)
     run, dmp = _damper_source(damper, cable)
