@@ -11,10 +11,11 @@ Usage: python benchmarks/transfer.py [--work DIR] [--draws 300] [--seed 0]
 3. The cable law: ``sbcal cable --damper damper1 --law iwan5`` (the family that fits this cable:
    docs/cable.md), stored under ``DIR/runs`` (reused when there).
 4. The new route: :func:`sbcal.design.predict.predict` for NEW at each amplitude (tolerances: the default
-   +-5 % on the offsets; bands with the calibration's model error, the default, and without),
+   +-5 % on the offsets; bands with the calibration's model discrepancy, the default, and without),
    compared with NEW's run means (outlier runs removed as the calibration removes them; magnitude:
    geometric mean, phase: mean): the share of the lines whose run mean lies inside the 90 % band
-   (magnitude, phase, both), and the rms error of the median (magnitude %, phase deg).
+   (magnitude, phase, both; every band, of the true curve, widened in quadrature by 1.645 times the run
+   mean's own standard error), and the rms error of the median (magnitude %, phase deg).
 5. The thesis's route on the same data: one EJ and beta per test of damper1 (``sbcal sample --all``,
    theta1, stored under ``DIR/runs``), the power laws ``EJ(A) = k A^-n`` and ``beta(A) = k A^-n``
    fitted to them by :func:`sbcal.inference.amplitude.fit_law` (what ``sbcal map`` does for EJ; the tests'
@@ -81,10 +82,14 @@ def record_new(path: Path):
 
 
 def run_means(bench, test):
+    """Lines, run means (geometric in magnitude) and the run means' standard errors (ln|f|, deg)."""
     td = remove_outlier_runs(bench.test(NEW.name, test)).data
     mag = np.exp(np.nanmean(np.log(td.magnitude), axis=0))  # NaN where a run lacks the line
     phase = np.nanmean(td.phase_deg, axis=0)
-    return td.freq_hz, mag, phase
+    n = np.sum(np.isfinite(td.magnitude), axis=0)
+    se = (np.nanstd(np.log(td.magnitude), axis=0, ddof=1) / np.sqrt(n),
+          np.nanstd(td.phase_deg, axis=0, ddof=1) / np.sqrt(n))
+    return td.freq_hz, mag, phase, se
 
 
 def thesis_route(runs: Path, draws: int, seed: int):
@@ -122,10 +127,17 @@ def quantiles(fuu):
     return np.quantile(np.abs(fuu), q, axis=0), np.quantile(np.degrees(np.angle(fuu)), q, axis=0)
 
 
-def score(freq, q_mag, q_phase, mag, phase):
-    """Coverage of the run means by the 90 % bands and the rms error of the medians."""
-    in_m = (mag >= q_mag[0]) & (mag <= q_mag[2])
-    in_p = (phase >= q_phase[0]) & (phase <= q_phase[2])
+def score(freq, q_mag, q_phase, mag, phase, se=None):
+    """Coverage of the run means by the 90 % bands and the rms error of the medians. With ``se`` (the run
+    means' standard errors, ln|f| and deg) each half-band is widened in quadrature by 1.645 se: the
+    bands are of the damper's true curve, a run mean is that curve plus its own noise."""
+    lo_m, hi_m = np.log(q_mag[1] / q_mag[0]), np.log(q_mag[2] / q_mag[1])
+    lo_p, hi_p = q_phase[1] - q_phase[0], q_phase[2] - q_phase[1]
+    if se is not None:
+        lo_m, hi_m = (np.hypot(h, 1.645 * se[0]) for h in (lo_m, hi_m))
+        lo_p, hi_p = (np.hypot(h, 1.645 * se[1]) for h in (lo_p, hi_p))
+    in_m = (np.log(mag / q_mag[1]) >= -lo_m) & (np.log(mag / q_mag[1]) <= hi_m)
+    in_p = (phase - q_phase[1] >= -lo_p) & (phase - q_phase[1] <= hi_p)
     return {"mag": in_m.mean(), "phase": in_p.mean(), "both": (in_m & in_p).mean(),
             "rms_mag_pct": 100 * np.sqrt(np.mean((q_mag[1] / mag - 1) ** 2)),
             "rms_phase_deg": np.sqrt(np.mean((q_phase[1] - phase) ** 2))}
@@ -156,22 +168,22 @@ def main():
     offsets = {k: getattr(NEW, k) * (1 + 0.05 * rng.uniform(-1, 1, args.draws)) for k in ("a1", "a2")}
     observed, rows = {}, []
     for i, a in enumerate(AMPS):
-        f, mag, phase = run_means(bench, f"{a:g}-{a:g}")
+        f, mag, phase, se = run_means(bench, f"{a:g}-{a:g}")
         assert np.allclose(f, pred.freq_hz)
         observed[a] = (f, mag, phase)
-        new = score(f, pred.stiffness_n_per_m[i], pred.phase_deg[i], mag, phase)
-        new0 = score(f, bare.stiffness_n_per_m[i], bare.phase_deg[i], mag, phase)
+        new = score(f, pred.stiffness_n_per_m[i], pred.phase_deg[i], mag, phase, se)
+        new0 = score(f, bare.stiffness_n_per_m[i], bare.phase_deg[i], mag, phase, se)
         ej, beta, sd_mag, sd_phase = thesis[a]
         fuu = dynamic_stiffness(NEW, f, EJ=ej, beta=beta, **offsets)
-        old = score(f, *quantiles(with_error(fuu, sd_mag, sd_phase, rng)), mag, phase)
-        old0 = score(f, *quantiles(fuu), mag, phase)
+        old = score(f, *quantiles(with_error(fuu, sd_mag, sd_phase, rng)), mag, phase, se)
+        old0 = score(f, *quantiles(fuu), mag, phase, se)
         rows.append((a, new, new0, old, old0, int(pred.extrapolated[i].sum())))
     plot_prediction(pred, work / "transfer.png", observed=observed)
 
     print(f"\ncable: {cable} ({pred.law}); new damper {NEW.name}: m1 {NEW.m1}, m2 {NEW.m2} kg, L1 {NEW.L1}, L2 {NEW.L2} m "
           f"(damper1: 3.1, 2.48 kg, 0.20, 0.15 m); {pred.n_draws} draws, seed {args.seed}")
     me = pred.model_error
-    print("model error from the calibration (rms residual ln|f| / phase deg per amplitude): " + ", ".join(
+    print("model discrepancy from the calibration (sd ln|f| / phase deg per amplitude): " + ", ".join(
         f"{a:g} mm {m:.3f} / {p:.2f}" for a, m, p in zip(me["amplitude_mm_pp"], me["logmag_sd"], me["phase_sd_deg"])))
     print(f"thesis route: EJ = {medians['EJ']['k']:.3g} A^-{medians['EJ']['n']:.3f}, "
           f"beta = {medians['beta']['k']:.3g} A^{-medians['beta']['n']:+.3f} (medians)")
@@ -184,8 +196,8 @@ def main():
     def err(r):
         return f"{r['rms_mag_pct']:.1f} / {r['rms_phase_deg']:.2f}"
 
-    print("\nrun means of the new damper inside the 90 % band: magnitude / phase / both; rms error of the median: "
-          "magnitude % / phase deg")
+    print("\nrun means of the new damper inside the 90 % band (the cable law's widened by the run means' own "
+          "noise): magnitude / phase / both; rms error of the median: magnitude % / phase deg")
     print("| amplitude [mm p-p] | cable law: in band | (without model error) | rms error | thesis route: in band | "
           "(without model error) | rms error | extrapolated lines |")
     print("|---|---|---|---|---|---|---|---|")

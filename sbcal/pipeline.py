@@ -124,7 +124,8 @@ def changed(stored: dict | None, current: dict) -> list[str]:
 
 _WHY = {"bench_rows": "bench rows changed", "damper": "damper description changed", "priors": "prior file changed",
         "settings": "settings changed", "seed": "seed changed", "sbcal": "sbcal version changed",
-        "posteriors": "per-test posteriors changed", "new": "not stored yet", "paramset": "parameter set changed"}
+        "posteriors": "per-test posteriors changed", "new": "not stored yet",
+        "format": "stored before sbcal judged what a verdict leaves", "paramset": "parameter set changed"}
 
 
 def _why(keys) -> str:
@@ -319,6 +320,8 @@ def diagnose_dampers(data: CleanBench, dampers, *, store, settings: Settings, ex
         inputs = diagnose_inputs(data, damper, settings=settings)
         stored = _read_json(diagnose_path(store, damper.name))
         why = changed(stored, inputs)
+        if not why and "remainder" not in stored:
+            why = ["format"]
         if reuse and not why:
             out[damper.name] = (stored, "reused")
         else:
@@ -366,7 +369,7 @@ def run(bench, dampers, *, store, report_dir, settings: Settings, executor=None,
         return None
     for name, (doc, status) in diagnose_dampers(data, dampers, store=store, settings=settings, executor=executor,
                                                 command=command, progress=progress).items():
-        say(f"{name}: diagnose: {status}; verdict {doc['verdict']}")
+        say(f"{name}: diagnose: {status}; verdict {doc['verdict']} — {doc['remainder']['words']}")
     if until == "diagnose":
         return None
     for damper in dampers:

@@ -137,7 +137,7 @@ def add_span(sub):
                         "the worst-case margin over the band; plot the margin against position")
     p.add_argument("--no-model-error", action="store_true",
                    help="the damper's band from the cable posterior and the tolerances alone, without the "
-                        "calibration's residual scale (as 'sbcal predict --no-model-error'; docs/span.md)")
+                        "calibration's model discrepancy (as 'sbcal predict --no-model-error'; docs/span.md)")
     p.add_argument("--life", action="store_true",
                    help="also the conductor's service life (Miner damage per year on its S-N curve) under the wind "
                         "climate of --climate, with and without the dampers (life.csv, life.png)")
@@ -268,7 +268,7 @@ def add_design(sub):
                         "band, candidate positions (default 20,30,12); the start and the best are then evaluated "
                         "with --draws and --lines")
     p.add_argument("--no-model-error", action="store_true",
-                   help="the cable posterior and tolerances alone, without the calibration's residual scale")
+                   help="the cable posterior and tolerances alone, without the calibration's model discrepancy")
     p.add_argument("--seed", type=int, default=0, help="random seed of the optimiser and the draws (default 0)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="output directory (default <runs>/design/<label>/, <runs> the store holding the cable run)")

@@ -65,7 +65,8 @@ def cmd_diagnose(args) -> int:
         from ..diagnosis.diagnose import curves_frame
 
         write_bench(curves_frame(result), args.curves)
-    print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else ""))
+    print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else "")
+          + f" — {result['remainder']['words']}")
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
     if len(result["bands"]) > 12:

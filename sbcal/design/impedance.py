@@ -3,10 +3,11 @@ posterior draw, over the span's frequencies (what :mod:`sbcal.design.span` reads
 
 Its band holds what ``sbcal predict``'s band holds, by the same switches: the cable posterior (a
 subset of its draws), the damper file's tolerances (geometry drawn per draw) and, unless switched
-off, the calibration's learned model error (:func:`sbcal.design.predict.model_error_of`: per
-calibrated amplitude the rms residual of ln|f| and of the phase of the run means about the model):
-each (draw, line) gets its own standard-normal pair ``z``, fixed by the seed and the lines, scaled by
-the residual at the clamp amplitude the balance asks for. The same ``z`` at every amplitude of one
+off, the calibration's model discrepancy (:func:`sbcal.design.predict.model_error_of`: per
+calibrated amplitude the spread of the run means about the model beyond their noise, in ln|f| and in
+phase; zero for a fit whose remainder is ``complete``): each (draw, line) gets its own standard-normal
+pair ``z``, fixed by the seed and the lines, scaled by the discrepancy at the clamp amplitude the
+balance asks for. The same ``z`` at every amplitude of one
 (draw, line) keeps K* a smooth function of the amplitude (the balance's roots need one), and the same
 seed gives the same ``z`` at every damper position and design (common random numbers: comparisons
 between positions or designs are not blurred by the Monte Carlo).
@@ -48,7 +49,7 @@ class CableImpedance:
     params : dict of str -> ndarray, shape (S,)
         The cable draws and the geometry draws.
     model_error : ModelError or None
-        The calibration's residual scale added per (draw, line) (module docstring); None: the
+        The calibration's model discrepancy added per (draw, line) (module docstring); None: the
         posterior and the tolerances alone.
     error_seed : int
         Seeds the standard-normal pairs of the model error (with the lines' count: one set per band).
@@ -123,7 +124,7 @@ def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0,
     Draws as :func:`predict` (posterior subset, geometry within the damper's tolerances; same
     ``seed``, same draws); draws the cable model cannot evaluate (outside the law's domain) are
     dropped. No bench effects: the span sees the damper itself. With ``model_error`` (default, as
-    ``sbcal predict``) the calibration's residual scale is added (module docstring) when the run
+    ``sbcal predict``) the calibration's model discrepancy is added (module docstring) when the run
     stores one (:attr:`CableImpedance.model_error` says whether it did).
     """
     cable = load_cable_run(run)
@@ -136,7 +137,7 @@ def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0,
     params = dict(_cable_params(cable, idx, False, own),
                   **_geometry(damper, tolerance, _unit_draws(tolerance, idx.size, geo)))
     errors = None
-    if model_error and cable.summary.get("residual_scale") is not None:
+    if model_error and cable.summary.get("discrepancy") is not None:
         errors = model_error_of(cable)
     imp = CableImpedance(damper=damper, law=cable.law, params=params)
     probe = imp(np.array([10.0]), np.array([[1e-4]]))[:, 0]

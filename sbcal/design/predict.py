@@ -31,14 +31,17 @@ ln f); ``share`` is the fraction of draws that have one. Resonances are
 numbered by frequency at each condition (a peak that appears or vanishes in a design sweep shifts
 the numbers of those above it).
 
-*Model error*: the cable law is a model, and the calibration's run means leave its posterior median
-curve by a margin the posterior does not carry (the likelihood has no discrepancy term: the posterior
-of the law is far narrower than its misfit). By default (``model_error``) the bands add that margin as
-the calibration showed it: per calibrated amplitude the rms residual of the calibration's run means
-about the median model curve, in ln|f| and in phase (:class:`ModelError`, computed once when the cable
-run was stored and read from its ``summary.json``: :func:`model_error_of`), interpolated in ln(amplitude)
-to each line's amplitude (held constant beyond the calibrated amplitudes), as independent normal
-errors on every draw and line. The resonances and the design sweeps are those of the model curves.
+*Model error*: the cable law is a model, and the calibration's run means can leave its posterior curves
+by more than the noise and the posterior explain (the likelihood has no discrepancy term: the posterior
+of the law is then far narrower than its misfit). By default (``model_error``) the bands add that
+excess as the calibration judged it: when the stored fit's remainder is ``partial``, per calibrated
+amplitude the spread of the calibration's run means about the posterior curves beyond their noise, in
+ln|f| and in phase (:class:`ModelError`, the run's ``discrepancy``, computed once when the cable run was
+stored: :func:`sbcal.inference.checks.discrepancy`; read by :func:`model_error_of`); zero when the fit
+is ``complete``. It is interpolated in ln(amplitude) to each line's amplitude (held constant beyond the
+calibrated amplitudes) and added as independent normal errors on every draw and line. The bands are
+those of the damper's true curve: a comparison with measured run means adds their own noise. The
+resonances and the design sweeps are those of the model curves.
 
 The calibration damper's mass offsets ``a1``, ``a2`` in the posterior are that damper's: they are
 used (instead of tolerance draws) only when the predicted damper is the calibration damper (same name
@@ -200,18 +203,18 @@ def _resonances(f_fine, fuu, x0, level: float) -> list:
 
 @dataclass(frozen=True)
 class ModelError:
-    """The calibration's residual scale per amplitude: rms over its lines at that amplitude of the run
-    means about the median model curve (draws of the posterior through the calibration's own model),
-    stored with the cable run (:func:`model_error_of`).
+    """The calibration's model discrepancy per amplitude: the spread of its run means at that amplitude
+    about the posterior curves beyond their noise (zero for a ``complete`` fit), stored with the cable
+    run (:func:`model_error_of`, :func:`sbcal.inference.checks.discrepancy`).
 
     Attributes
     ----------
     amplitude_mm_pp : ndarray, shape (K,)
         The calibrated amplitudes, increasing.
     logmag_sd : ndarray, shape (K,)
-        rms residual of ln|f| [1].
+        Discrepancy sd of ln|f| [1].
     phase_sd_deg : ndarray, shape (K,)
-        rms residual of the phase [deg].
+        Discrepancy sd of the phase [deg].
     """
 
     amplitude_mm_pp: np.ndarray
@@ -231,8 +234,8 @@ class ModelError:
 
 
 def model_error_of(run) -> ModelError:
-    """The :class:`ModelError` of a stored cable fit: the residual scale its writer computed
-    (``residual_scale`` of its ``summary.json``; :func:`sbcal.inference.cable_fit.store_cable`).
+    """The :class:`ModelError` of a stored cable fit: the discrepancy its writer computed
+    (``discrepancy`` of its ``summary.json``; :func:`sbcal.inference.cable_fit.store_cable`).
 
     Raises
     ------
@@ -240,10 +243,10 @@ def model_error_of(run) -> ModelError:
         One line: the summary has no such key (a run stored before it existed) or a malformed one.
     """
     cable = load_cable_run(run)
-    where = f"{cable.path}/summary.json: key 'residual_scale'"
-    doc = cable.summary.get("residual_scale")
+    where = f"{cable.path}/summary.json: key 'discrepancy'"
+    doc = cable.summary.get("discrepancy")
     if doc is None:
-        raise InputError(f"{where}: missing (a cable run stored before sbcal kept its residual scale; "
+        raise InputError(f"{where}: missing (a cable run stored before sbcal kept its discrepancy; "
                          "a new 'sbcal cable' run has it)")
     try:
         amp, mag, phase = (np.asarray(doc[k], float) for k in ("amplitude_mm_pp", "logmag_sd", "phase_sd_deg"))
@@ -260,9 +263,9 @@ _ERROR_SAMPLES = 4000  # (draw, model-error) samples per line behind the bands w
 
 def _bands(fuu, x0, f, error, rng):
     """Quantiles (3, F) of |f|, phase [deg] and power from the draws ``fuu`` (S, F), with the model
-    error ``(logmag_sd, phase_sd_rad)`` per line (each (F,)) added when given."""
+    error ``(logmag_sd, phase_sd_rad)`` per line (each (F,)) added when given and not zero."""
     mag, phase = np.abs(fuu), np.angle(fuu)  # a passive draw's phase lies in (0, pi): no wrap
-    if error is not None:
+    if error is not None and (np.any(error[0] > 0) or np.any(error[1] > 0)):  # none for a complete fit
         reps = max(1, -(-_ERROR_SAMPLES // fuu.shape[0]))
         sd_m, sd_p = error
         e = rng.standard_normal((2, reps) + fuu.shape)
@@ -476,7 +479,7 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     bench_effects : bool
         Apply the calibration bench's fitted measurement-chain effects.
     model_error : bool
-        Add the calibration's residual scale to the bands (:func:`model_error_of`; module docstring).
+        Add the calibration's model discrepancy to the bands (:func:`model_error_of`; module docstring).
         Off, or when the run stores none (a warning), the bands are the posterior's and the tolerances'
         alone.
 

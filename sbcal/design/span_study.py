@@ -122,7 +122,7 @@ class SpanStudy:
     life : Life or None
         The service life under a wind climate (:func:`sbcal.design.life.service_life`), when asked.
     model_error : dict or None
-        The calibration's residual scale the damper's impedance carries
+        The calibration's model discrepancy the damper's impedance carries
         (:class:`sbcal.design.predict.ModelError` ``as_dict()``), None when off or not stored.
     warnings : tuple of str
         The balance's and the study's (cable posterior not converged, law extrapolated).
@@ -296,7 +296,7 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
         the 10 % quantile of the margin to a few per cent at a fifth of the cost of 200). The result
         at the chosen position is then computed with all ``n_draws``.
     model_error : bool
-        Add the calibration's residual scale to the damper's impedance, as ``sbcal predict`` adds it
+        Add the calibration's model discrepancy to the damper's impedance, as ``sbcal predict`` adds it
         to its bands (:mod:`sbcal.design.impedance`); a run that stores none gives a warning.
     climate : Climate or str, optional
         A wind climate (:func:`sbcal.design.life.parse_climate`: ``weibull:k=2.0,c=4.5`` or a CSV
@@ -342,7 +342,7 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     notes = [w for w in (run.convergence_warning(), run.range_warning()) if w]
     imp = impedance_from_cable(run, dmp, n_draws=n_draws, seed=seed, model_error=model_error)
     if model_error and imp.model_error is None:
-        notes.append(f"{run.path}/summary.json: no 'residual_scale' (a cable run stored before sbcal kept it): "
+        notes.append(f"{run.path}/summary.json: no 'discrepancy' (a cable run stored before sbcal kept it): "
                      "the band holds the cable posterior and the tolerances only, not the model error")
     placement = None
     if optimise:

@@ -21,6 +21,11 @@ model it and show the fit improve (``docs/diagnose.md``).
    measurement-chain effects that compose with it (:data:`sbcal.inference.cable_fit.SECONDARY`,
    :data:`sbcal.model.extensions.CHAIN`) are screened and refitted on top, and the same rule names a
    ``secondary`` effect (else null).
+6. **What is left**: the verdict's model (with its secondary effect) is judged by the rule of step 2:
+   ``complete`` when no line is off and the global check passes, else ``partial``, with the remainder
+   located and described (:mod:`sbcal.diagnosis.remainder`) and the model's discrepancy per amplitude
+   (:func:`sbcal.inference.checks.discrepancy`; zero when complete), which widens the fitted curves'
+   bands. ``unexplained`` has no qualifier: its remainder is the baseline's misfit.
 """
 
 from __future__ import annotations
@@ -33,13 +38,15 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.bench import rows_digest
 from ..inference.cable_fit import SECONDARY, CableFit, store_cable
+from ..inference.checks import discrepancy, predictive_check, qualifier
 from ..inference.runs import versions
 from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
 from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits
-from .locate import _band_rms, _band_sq, _bands, _check, _rocking_signature, _screen, _signatures, _statistics
+from .remainder import remainder
+from .locate import _band_rms, _band_sq, _bands, _rocking_signature, _screen, _signatures, _statistics
 from .words import _parameters
 
 
@@ -90,24 +97,24 @@ def _model_curves(fits, keys):
 
 
 def _check_model(fits, keys, case: _Case):
-    """A fitted model's predictive check and PSIS-LOO: ``(z, thresholds, coverage, elpd_i, global)``."""
+    """A fitted model's predictive check and PSIS-LOO: ``(z, thresholds, coverage, elpd_i, global, check)``
+    (``check``: the :class:`sbcal.inference.checks.Check` the first, second, third and fifth come from)."""
     mean, var, _ = _model_curves(fits, keys)
     tests, n_runs = case.tests, case.n_runs
     n_params = sum(fits[k]["n_params"] for k in keys)
-    z, thr, coverage, glob = _check(case.likes, [mean[t] for t in tests], [var[t] for t in tests], case.config.alpha,
-                                    n_params)
+    c = predictive_check(case.likes, [mean[t] for t in tests], [var[t] for t in tests], case.config.alpha, n_params)
     parts = {}
     for key in keys:  # a fit's pointwise ELPD, runs of its tests in order
         ts = fits[key]["tests"]
         e = fits[key]["loo"].pointwise
         parts.update(zip(ts, np.split(e, np.cumsum([n_runs[t] for t in ts])[:-1])))
-    return z, thr, coverage, np.concatenate([parts[t] for t in tests]), glob
+    return c.z, c.thresholds, c.coverage_90, np.concatenate([parts[t] for t in tests]), c.global_, c
 
 
 def _summary(name, fits, *, keys, check, bands, tests, ref_i=None) -> dict:
     """Numbers of one model from its :func:`_check_model`: ELPD, misfit, coverage, convergence; with the
     reference model's pointwise ELPD ``ref_i``, the difference to it."""
-    z, thr, coverage, elpd_i, glob = check
+    z, thr, coverage, elpd_i, glob, _ = check
     out = {"effect": name, "elpd": float(elpd_i.sum()),
            "elpd_se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
            "coverage_90": coverage,
@@ -238,9 +245,9 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     base_keys = [("baseline", t) for t in tests]
     n_runs = case.n_runs
     base_check = _check_model(fits, base_keys, case)
-    z0, thr0, _, base_i, glob0 = base_check
+    z0, thr0, _, base_i, glob0, _ = base_check
     bands = _bands(tests, likes, z0, thr0)
-    misfit = bool(bands) or glob0["p_value"] < config.global_alpha
+    misfit = qualifier(base_check[5], config.global_alpha) == "partial"  # the rule that judges what a model leaves
     statistics = _statistics(damper, tests, likes, base_fits, z0)
     screen = _screen(statistics, config, EXTENSIONS)
     before = _summary("baseline", fits, keys=base_keys, check=base_check, bands=bands, tests=tests)
@@ -259,7 +266,7 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     shown_fits = kept.get(shown, {})
     per_test = []
     if shown:
-        z_after, _, _, after_i, _ = checks[shown]
+        z_after, _, _, after_i, _, _ = checks[shown]
         start = 0
         for t, zb, za in zip(tests, z0, z_after):
             n = n_runs[t]
@@ -269,17 +276,24 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
                              "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
 
     # 5. secondary: locate again on the verdict's model, refit what composes with it
-    secondary = None
+    secondary, final = None, None
     if config.secondary and verdict in EXTENSIONS and _composable(verdict):
-        secondary = _secondary(verdict, shown_fits, checks[verdict], case)
+        secondary, final = _secondary(verdict, shown_fits, checks[verdict], case)
+
+    # 6. what is left: the qualifier, the remainder, the discrepancy downstream bands carry
+    rem, disc, curve_sd = _what_is_left(verdict, case, base_check=base_check, base_mean=_model_curves(fits, base_keys)[0],
+                                        bands=bands, ranking=ranking,
+                                        shown=(checks[verdict], shown_fits) if verdict in EXTENSIONS else None,
+                                        final=final, secondary=secondary)
 
     parameters = _parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown else {}
-    curves = _curves(case, fits, base_keys, shown, shown_fits)
+    curves = _curves(case, fits, base_keys, shown, shown_fits, curve_sd)
     if store is not None and verdict == "strand_slip":
         _store_cables(damper, shown_fits, store=store, seed=seed, comparison=laws.get("strand_slip"))
 
     result = {
-        "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict,
+        "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict, "qualifier": rem["qualifier"],
+        "remainder": rem, "discrepancy": disc,
         "bench": {"path": str(data.source), "rows_sha256": rows_digest(data, damper.name),
                   "removed_runs": {t: list(data.removed_runs(damper.name, t)) for t in tests}},
         "rule": (f"a misfit when a line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
@@ -313,9 +327,9 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
 def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None:
     """The second effect on top of the verdict's model (module docstring, step 5), or None."""
     tests, likes, config = case.tests, case.likes, case.config
-    z1, thr1, _, _, glob1 = primary_check
+    z1, thr1, _, _, glob1, _ = primary_check
     bands1 = _bands(tests, likes, z1, thr1)
-    misfit = bool(bands1) or glob1["p_value"] < config.global_alpha
+    misfit = qualifier(primary_check[5], config.global_alpha) == "partial"
     joint = primary == "strand_slip"
     mean, var, _ = _model_curves(primary_fits, sorted(primary_fits))
     sig = _signatures(tests, likes, [mean[t] for t in tests], [var[t] for t in tests], z1)
@@ -331,7 +345,7 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None
     out = {"effect": None, "misfit": misfit, "bands": len(bands1), "global": glob1, "screen": screen,
            "statistics": sig, "ranking": []}
     if not candidates:
-        return out
+        return out, None
     if joint:  # on top of the verdict's cable law only
         case = replace(case, config=replace(config, laws=(next(iter(primary_fits.values()))["law"],)))
     fits = case.fit([(primary, (e,)) for e in candidates], f"secondary: {len(candidates)} candidate(s)")
@@ -350,11 +364,48 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None
         out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names, each_test=True)
         out["residuals"] = {t: {"z_before": zb.tolist(), "z_after": za.tolist()}
                             for t, zb, za in zip(tests, z1, checks[choice][0])}
-    return out
+        return out, (choice, checks[choice], kept[choice])
+    return out, None
 
 
-def _curves(case: _Case, fits, base_keys, shown, shown_fits) -> dict:
-    """Posterior-median model curves per test of the baseline and the shown model (log-magnitude, phase)."""
+def _what_is_left(verdict, case: _Case, *, base_check, base_mean, bands, ranking, shown, final, secondary):
+    """The verdict's qualifier and remainder (:func:`sbcal.diagnosis.remainder.remainder`), its model's
+    discrepancy (:func:`sbcal.inference.checks.discrepancy`), and per test the sd of the model curves with
+    the discrepancy (``{test: (2, n_freq)}``, for the fitted curves' bands; None without a model)."""
+    tests, likes = case.tests, case.likes
+    if verdict == "unexplained":
+        rem = remainder(None, base_check[5], base_check[5], tests=tests, likes=likes, model_mean=base_mean, bands=bands,
+                        tried=ranking, config=case.config)
+        return rem, None, None
+    if verdict == "none":
+        rem = remainder("the per-test model", base_check[5], base_check[5], tests=tests, likes=likes, model_mean={},
+                        bands=[], tried=[], config=case.config)
+        return rem, None, None
+    name, check, fits, added = verdict, shown[0], shown[1], None
+    if final is not None:
+        added, check, fits = final
+        name = _name(verdict, (added,))
+    mean, var, _ = _model_curves(fits, sorted(fits))
+    c = check[5]
+    rem = remainder(name, c, base_check[5], tests=tests, likes=likes, model_mean=mean,
+                    bands=_bands(tests, likes, c.z, c.thresholds), tried=(secondary or {}).get("ranking", []),
+                    config=case.config, explained_by=added)
+    disc = discrepancy(likes, [mean[t] for t in tests], [var[t] for t in tests], partial=rem["qualifier"] == "partial")
+    sd = {}
+    for t, lk in zip(tests, likes):  # the discrepancy at each line's amplitude (zero where none was estimated)
+        at = np.searchsorted(disc["amplitude_mm_pp"], lk.amplitude_mm_pp)
+        known = np.isin(lk.amplitude_mm_pp, disc["amplitude_mm_pp"])
+        d2 = np.stack([np.where(known, np.take(np.asarray(disc[k], float), np.minimum(at, len(disc[k]) - 1),
+                                                mode="clip") * f, 0.0) for k, f in
+                       (("logmag_sd", 1.0), ("phase_sd_deg", np.pi / 180))]) ** 2 if disc["amplitude_mm_pp"] else 0.0
+        sd[t] = np.sqrt(var[t] + d2)
+    return rem, disc, sd
+
+
+def _curves(case: _Case, fits, base_keys, shown, shown_fits, sd=None) -> dict:
+    """Posterior-median model curves per test of the baseline and the shown model (log-magnitude, phase);
+    with ``sd`` (per test, ``(2, n_freq)``) the shown model's curves also carry it (``logmag_sd``,
+    ``phase_sd``: the posterior spread with the discrepancy, for the curves' bands)."""
     tests, likes = case.tests, case.likes
     out = {}
     _, _, base = _model_curves(fits, base_keys)
@@ -365,6 +416,9 @@ def _curves(case: _Case, fits, base_keys, shown, shown_fits) -> dict:
     for name, med in models.items():
         out[name] = {t: {"freq_hz": lk.freq_hz.tolist(), "amplitude_mm_pp": lk.amplitude_mm_pp.tolist(),
                          "logmag": med[t][0].tolist(), "phase": med[t][1].tolist()} for t, lk in zip(tests, likes)}
+    if shown and sd:
+        for t in tests:
+            out[shown][t].update(logmag_sd=sd[t][0].tolist(), phase_sd=sd[t][1].tolist())
     out["data"] = {t: {"logmag": lk.ybar[0].tolist(), "phase": lk.ybar[1].tolist()} for t, lk in zip(tests, likes)}
     return out
 

@@ -5,14 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ..core.seeds import job_seed
 from ..core.workers import default_workers, one_blas_thread, run_jobs
 from ..data.labels import state_tests
 from ..inference.cable_fit import (CableFit, cable_config, cable_likelihood, cable_seed, compare_families,
                                    compared_laws, sample_cable)
 from ..inference.calibrate import likelihood_for
+from ..inference.checks import ALPHA, GLOBAL_ALPHA, curve_moments
 from ..inference.likelihood import JointLikelihood
 from ..inference.priors import composed_prior
 from ..inference.sampler import SamplerConfig, sample
@@ -65,8 +64,8 @@ class DiagnoseConfig:
         Processes: fits run in parallel, one per process.
     """
 
-    alpha: float = 0.05
-    global_alpha: float = 0.01
+    alpha: float = ALPHA
+    global_alpha: float = GLOBAL_ALPHA
     clear_se: float = 4.0
     min_explained: float = 0.8
     laws: tuple = FITTED_LAWS
@@ -159,14 +158,7 @@ def _posterior(job: FitJob, res) -> dict:
     params = res.flat()
     joint = isinstance(like, JointLikelihood)
     mus = like.predict(params) if joint else [like.predict(params)]
-    mu_mean, mu_var, mu_median = [], [], []
-    for mu in mus:
-        # phase draws about the first draw, so a wrap cannot corrupt the mean
-        d = mu.copy()
-        d[1] = mu[1, :1] + np.remainder(mu[1] - mu[1, :1] + np.pi, 2 * np.pi) - np.pi
-        mu_mean.append(d.mean(axis=1))
-        mu_var.append(d.var(axis=1))
-        mu_median.append(np.median(d, axis=1))
+    mu_mean, mu_var, mu_median = (list(m) for m in zip(*map(curve_moments, mus)))
     return dict(params=params, names=like.prior.names, log_lik=res.log_likelihood, mu_mean=mu_mean, mu_var=mu_var,
                 mu_median=mu_median, convergence=res.convergence_dict(), converged=res.converged,
                 result=res, like=like, n_params=like.prior.ndim, tests=job.tests, loo=loo(res.log_likelihood))

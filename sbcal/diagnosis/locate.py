@@ -1,5 +1,5 @@
-"""Where the model misses: standardised residuals of the run means, the per-line check at a family-wise
-false-alarm rate, bands, the global check, and the statistics that screen the catalogue's effects."""
+"""Where the model misses: bands of off lines (of the predictive check of
+:func:`sbcal.inference.checks.predictive_check`), and the statistics that screen the catalogue's effects."""
 
 from __future__ import annotations
 
@@ -15,41 +15,6 @@ from .fits import _QUANTITIES, DiagnoseConfig
 __all__ = []
 
 # --- locate --------------------------------------------------------------------------------------
-
-def _check(likes, mu_mean, mu_var, alpha: float, n_params: int):
-    """Standardised residuals per test ``(2, n_freq)``, the off-line thresholds, coverage and the global check.
-
-    The run mean's residual is standardised by the noise-only likelihood's t of the run mean given the
-    runs' deviations (:meth:`TestLikelihood.mean_scale`) widened by the posterior spread of the model;
-    the band of a new run is the likelihood's new-run t (:meth:`TestLikelihood.new_run`), likewise
-    widened. The global check: the normal scores of every z (through its t), squared and summed,
-    against chi-square with the number of values less ``n_params``.
-    """
-    n_lines = sum(2 * lk.freq_hz.size for lk in likes)
-    z, thr, inside, total, scores = [], [], 0, 0, []
-    for lk, m, v in zip(likes, mu_mean, mu_var):
-        mu = m[:, None, :]
-        r = lk.residual(mu)[:, 0]
-        scale, dof = (a[:, 0] for a in lk.mean_scale({}, mu))
-        zt = r / np.sqrt(scale ** 2 + v)
-        z.append(zt)
-        thr.append(stats.t.ppf(1 - alpha / (2 * n_lines), dof))  # (2, n_freq)
-        scores.append(stats.norm.isf(stats.t.sf(np.abs(zt), dof)))  # |z| as the normal deviate of equal tail
-        # 90 % predictive band of a new run against every recorded run
-        _, new_scale, new_dof = (a[:, 0] for a in lk.new_run({}, mu))
-        half = stats.t.ppf(0.95, new_dof) * np.sqrt(new_scale ** 2 + v)
-        dev = lk.y - m[:, None, :]
-        dev[1] = np.remainder(dev[1] + np.pi, 2 * np.pi) - np.pi
-        ok = (np.abs(dev) <= half[:, None, :]) & lk.present[None]
-        inside += int(ok.sum())
-        total += 2 * int(lk.present.sum())
-    u = np.concatenate([s.ravel() for s in scores])
-    u = np.where(np.isfinite(u), u, 40.0)  # a tail beyond double precision: far beyond chance
-    dof = max(u.size - n_params, 1)
-    chi2 = float(np.sum(u ** 2))
-    glob = {"chi2": chi2, "dof": int(dof), "p_value": float(stats.chi2.sf(chi2, dof)), "excess": chi2 - dof}
-    return z, thr, inside / total, glob
-
 
 def _bands(tests, likes, z, thr) -> list:
     """Neighbouring off lines (a gap of one line allowed) as bands, per test and quantity."""

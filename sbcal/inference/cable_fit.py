@@ -35,6 +35,7 @@ from ..model.cable import DEFAULT_SECTIONS, CableModel
 from ..model.damper import Damper
 from ..model.hysteresis import FITTED_LAWS, law_for
 from .calibrate import likelihood_for
+from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, predictive_check, qualifier
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
@@ -369,29 +370,22 @@ def _curvature_ranges(fit: CableFit) -> dict:
     return out
 
 
-_RESIDUAL_DRAWS = 50  # posterior draws behind the median model curve of the residual scale
-
-
-def _residual_scale(fit: CableFit) -> dict:
-    """The calibration's residual scale: per calibrated amplitude [mm p-p], the rms over its lines of the
-    run means about the median model curve of :data:`_RESIDUAL_DRAWS` posterior draws (the fit's own
-    model: its damper, lines, sweeps and effects), in ln|f| [1] and in phase [deg]. ``sbcal predict``
-    adds it to its bands (:func:`sbcal.design.predict.model_error_of`)."""
-    like, draws = fit.like, fit.result.flat()
-    n = fit.result.log_prob.size
-    # the subset predict drew with its default seed when it computed this itself: the same numbers
-    rng = np.random.default_rng(np.random.SeedSequence(0).spawn(2)[0])
-    idx = np.arange(n) if _RESIDUAL_DRAWS >= n else np.sort(rng.choice(n, size=_RESIDUAL_DRAWS, replace=False))
-    _, fm = like.model.state(like.damper, like.freq_hz, continuation=True, **{k: v[idx] for k, v in draws.items()})
+def _remainder(fit: CableFit) -> tuple[dict, dict]:
+    """What the fit leaves, judged as the diagnosis judges a verdict's model (:mod:`sbcal.inference.checks`):
+    ``(remainder, discrepancy)``. ``remainder``: the ``qualifier`` (``complete``/``partial``), rms z, lines
+    off and the global check of the run means about the posterior curves (every draw); ``discrepancy``:
+    per calibrated amplitude the spread beyond the noise (zero when ``complete``), which ``sbcal predict``
+    adds to its bands (:func:`sbcal.design.predict.model_error_of`)."""
+    like = fit.like
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a line no draw solved stays NaN
-        mu = np.stack([np.nanmedian(np.log(np.abs(fm)), axis=0), np.nanmedian(np.angle(fm), axis=0)])
-    r = np.concatenate([lk.ybar for lk in like.likes], axis=1) - mu
-    r[1] = np.remainder(r[1] + np.pi, 2 * np.pi) - np.pi
-    amp = np.asarray(like.model.amplitude_mm_pp, float)
-    levels = np.unique(amp)
-    sd = np.array([[np.sqrt(np.nanmean(r[q, amp == a] ** 2)) for a in levels] for q in (0, 1)])
-    return {"amplitude_mm_pp": levels.tolist(), "logmag_sd": sd[0].tolist(), "phase_sd_deg": np.degrees(sd[1]).tolist()}
+        warnings.simplefilter("ignore", RuntimeWarning)
+        moments = [curve_moments(mu) for mu in like.predict(fit.result.flat())]
+    mean, var = [m[0] for m in moments], [m[1] for m in moments]
+    check = predictive_check(like.likes, mean, var, ALPHA, like.prior.ndim)
+    word = qualifier(check, GLOBAL_ALPHA)
+    remainder = {"qualifier": word, "rms_z": check.rms_z, "lines_off": check.lines_off, "n_lines": check.n_lines,
+                 "global": check.global_, "alpha": ALPHA, "global_alpha": GLOBAL_ALPHA}
+    return remainder, discrepancy(like.likes, mean, var, partial=word == "partial")
 
 
 def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None) -> dict:
@@ -400,7 +394,7 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
     The netCDF holds the posterior, the log-probability, the pointwise log-likelihood by run
     (``runs``, dim ``obs`` with ``obs_test``/``obs_run`` coordinates), the lines (frequency, amplitude,
     test) and the run means observed. The summary adds the law, the tests, each test's curvature range
-    and folds, the residual scale (``residual_scale``: :func:`_residual_scale`), the convergence and
+    and folds, what the fit leaves (``remainder``, ``discrepancy``: :func:`_remainder`), the convergence and
     (with ``comparison``) the family comparison.
     """
     from ..core._io import write_json
@@ -416,7 +410,7 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "tests": list(fit.tests), "parameters": parameter_summary(res), **res.convergence_dict(),
         "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
         "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
-        "residual_scale": _residual_scale(fit),
+        **dict(zip(("remainder", "discrepancy"), _remainder(fit))),
         "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
         "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
     }

@@ -213,7 +213,8 @@ def _law_figure(cables: dict, path: Path) -> str:
 
 
 def _curves_figure(doc, path: Path) -> str:
-    """Each test's run means with the per-test model's and the verdict model's fitted curves."""
+    """Each test's run means with the per-test model's and the verdict model's fitted curves (the latter's
+    90 % band holds the posterior's spread and, for a ``partial`` verdict, the model discrepancy)."""
     plt = pyplot()
     curves = doc.get("curves", {})
     base = curves.get("baseline", {})
@@ -230,7 +231,12 @@ def _curves_figure(doc, path: Path) -> str:
                 ax.plot(f, conv(np.asarray(data[name])), "k.", ms=3, label="mean of the runs")
             ax.plot(f, conv(np.asarray(base[t][name])), color="0.5", lw=1, label="per-test model")
             if t in unified:
-                ax.plot(f, conv(np.asarray(unified[t][name])), color="C3", lw=1.2, label=model)
+                mid = np.asarray(unified[t][name])
+                ax.plot(f, conv(mid), color="C3", lw=1.2, label=model)
+                if f"{name}_sd" in unified[t]:  # 90 % band: the posterior's spread and the model discrepancy
+                    half = 1.645 * np.asarray(unified[t][f"{name}_sd"])
+                    ax.fill_between(f, conv(mid - half), conv(mid + half), color="C3", alpha=0.2, lw=0,
+                                    label="90 % band (with the discrepancy)")
             ax.text(0.01, 0.95, f"{t} {'|F/X| [N/m]' if q == 0 else 'phase [deg]'}", transform=ax.transAxes,
                     va="top", fontsize=8, bbox=dict(fc="white", ec="none", alpha=0.8))
             if q == 0:
