@@ -216,8 +216,10 @@ def cmd_span(args) -> int:
                   f"{ws['median']:.3g} [{ws['q05']:.3g}, {ws['q95']:.3g}] MPa, margin {q50:.3g} [{q05:.3g}, {q95:.3g}] "
                   f"(median [5 %, 95 %]; {_margin_words(q05)} for 95 % of the draws)")
             wl = study.worst_line()
-            band = ("posterior, tolerances and model error" if study.model_error is not None
-                    else "posterior and tolerances")
+            me = study.model_error
+            band = ("posterior and tolerances" if me is None else
+                    "posterior, tolerances and model discrepancy" if any(me["logmag_sd"] + me["phase_sd_deg"]) else
+                    "posterior and tolerances; no model discrepancy: the cable fit is complete")
             print(f"  worst line  : {wl['frequency_hz']:.3g} Hz (wind {wl['wind_m_s']:.3g} m/s), stress "
                   f"{wl['stress_mpa']['median']:.3g} [{wl['stress_mpa']['q05']:.3g}, {wl['stress_mpa']['q95']:.3g}] MPa "
                   f"(band: {band})")

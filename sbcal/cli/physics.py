@@ -14,7 +14,8 @@ def add_diagnose(sub):
     p = sub.add_parser("diagnose", help="locate the misfit, name the missing physics, model it, show the fit improve",
                        description="Fit the per-test model, locate where the recordings leave its predictive band, "
                                    "refit the catalogue's physics extensions the residuals point to, compare them "
-                                   "by PSIS-LOO and give a verdict (docs/diagnose.md).")
+                                   "by PSIS-LOO and give a verdict, qualified complete or partial by what its model "
+                                   "still leaves (docs/diagnose.md).")
     damper_options(p)
     p.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels (default: all of the damper's)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the base parameters (default: the bundled one)")

@@ -220,7 +220,9 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     Returns
     -------
     dict
-        JSON-ready: ``verdict``, ``ranking``, ``bands``, ``parameters``, ``before``, ``after``,
+        JSON-ready: ``verdict``, ``qualifier`` (``complete``/``partial``; null for ``unexplained``),
+        ``remainder`` (what the verdict's model leaves, with its sentence ``words``), ``discrepancy``
+        (per amplitude; null without a model), ``ranking``, ``bands``, ``parameters``, ``before``, ``after``,
         ``secondary``, ``law``, ``global``, ``statistics``, ``screen``, ``per_test``, ``rule``,
         ``settings`` (see ``docs/diagnose.md``); and ``curves`` (for :func:`curves_frame`).
     """
@@ -389,7 +391,7 @@ def _what_is_left(verdict, case: _Case, *, base_check, base_mean, bands, ranking
     c = check[5]
     rem = remainder(name, c, base_check[5], tests=tests, likes=likes, model_mean=mean,
                     bands=_bands(tests, likes, c.z, c.thresholds), tried=(secondary or {}).get("ranking", []),
-                    config=case.config, explained_by=added)
+                    config=case.config, explained_by=added, screen=(secondary or {}).get("screen"))
     disc = discrepancy(likes, [mean[t] for t in tests], [var[t] for t in tests], partial=rem["qualifier"] == "partial")
     sd = {}
     for t, lk in zip(tests, likes):  # the discrepancy at each line's amplitude (zero where none was estimated)

@@ -65,14 +65,28 @@ def _band(band, lk, model_mean) -> dict:
     return out
 
 
-def _tried(tried) -> str:
-    if not tried:
-        return "no catalogued effect passed the screen on it"
-    return "tried: " + ", ".join(f"{t['effect']} removes {max(t['explained'], 0.0):.0%}" for t in tried)
+def _screened(screen: dict) -> str:
+    """The screen's statistic of each effect it kept out, short: a share of the misfit its signature
+    explains, else the statistic named."""
+    parts = []
+    for e, v in screen.items():
+        if v["kept"]:
+            continue
+        head, _, number = v["why"].rpartition(" ")
+        parts.append(f"{e} {float(number):.0%}" if head.startswith("share") else f"{e} ({head} {number})")
+    return ", ".join(parts)
+
+
+def _tried(tried, screen) -> str:
+    if tried:
+        return "tried: " + ", ".join(f"{t['effect']} removes {max(t['explained'], 0.0):.0%}" for t in tried)
+    out = "no catalogued effect passed the screen on it"
+    shown = _screened(screen or {})
+    return f"{out}: the share of it each one's signature explains: {shown}" if shown else out
 
 
 def remainder(model: str | None, check, base_check, *, tests, likes, model_mean, bands, tried, config,
-              explained_by: str | None = None) -> dict:
+              explained_by: str | None = None, screen: dict | None = None) -> dict:
     """The qualifier and the description of what ``model`` leaves.
 
     Parameters
@@ -93,6 +107,9 @@ def remainder(model: str | None, check, base_check, *, tests, likes, model_mean,
     config : DiagnoseConfig
     explained_by : str, optional
         The secondary effect already in ``model`` (not counted as tried on what is left).
+    screen : dict, optional
+        The screen of the effects that could have been tried (``{effect: {"kept", "why"}}``): those it
+        kept out are named with their statistic when nothing was tried.
 
     Returns
     -------
@@ -114,7 +131,7 @@ def remainder(model: str | None, check, base_check, *, tests, likes, model_mean,
              for t in tried if t["effect"] != explained_by]
     out = {"qualifier": word, "model": model, "rms_z": check.rms_z, "lines_off": check.lines_off,
            "n_lines": check.n_lines, "global": check.global_, "share": share, "bands": shaped, "tests": off_tests,
-           "tried": tried}
+           "tried": tried, "screened_out": {e: v["why"] for e, v in (screen or {}).items() if not v["kept"]}}
     name = model or "the per-test model"
     numbers = f"rms z {check.rms_z:.2f}, {check.lines_off} of {check.n_lines} lines off"
     if word == "complete":
@@ -131,5 +148,5 @@ def remainder(model: str | None, check, base_check, *, tests, likes, model_mean,
     most = (f"; most at {shaped[0]['words']}" if shaped else "")
     head = (f"partial: {name} leaves {share:.1%} of the misfit over chance ({numbers}) {spread}{most}"
             if model is not None else f"the misfit ({numbers}) {spread}{most}")
-    out["words"] = f"{head}; not explained by any modelled effect ({_tried(tried)})"
+    out["words"] = f"{head}; not explained by any modelled effect ({_tried(tried, screen)})"
     return out

@@ -385,7 +385,7 @@ def _span_item(d: Path, doc: dict, figs: Path) -> dict:
     if not damped or me == "absent":
         model_error = None
     elif me:
-        model_error = ("the bands hold the calibration's model error (its run means' rms residual: "
+        model_error = ("the bands hold the calibration's model error (the discrepancy its law leaves beyond the noise, sd: "
                        + ", ".join(f"{a:g} mm p-p {100 * s:.1f} % / {ph:.1f}°" for a, s, ph in
                                    zip(me["amplitude_mm_pp"], me["logmag_sd"], me["phase_sd_deg"])) + ")")
     else:
