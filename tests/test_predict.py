@@ -52,6 +52,14 @@ def _store(root, *, converged=True, seed=0, spread=0.02, offset=OFFSET):
     scatter about TRUTH by ``spread`` in log (1.5 ``spread`` on the density exponent). The recordings are
     the law's own curves with 1 % noise, and at 1 mm ``offset`` on top (ln|f|, phase [rad]): physics the
     law does not have, which the store's remainder must call ``partial`` and its discrepancy carry."""
+    out = root / "runs" / "damper1" / "cable-dry"
+    store_cable(_fit(root, converged=converged, seed=seed, spread=spread, offset=offset), out,
+                meta={"seed": seed, "made_by": "test", "damper_values": asdict(resolve_damper("damper1"))})
+    return out
+
+
+def _fit(root, *, converged=True, seed=0, spread=0.02, offset=OFFSET):
+    """The :class:`CableFit` that :func:`_store` stores (its recordings written to ``root/bench.csv``)."""
     d = resolve_damper("damper1")
     rng = np.random.default_rng(seed)
     model = CableModel(law_for(LAW))
@@ -78,10 +86,7 @@ def _store(root, *, converged=True, seed=0, spread=0.02, offset=OFFSET):
                        ess_bulk=many, ess_tail=many, n_steps=100, burn=20, thin=1, converged=converged,
                        reason="" if converged else "R-hat above 1.01", start={}, wall_s=0.0,
                        config=cable_config(len(like.prior.names)))
-    fit = CableFit(damper=d.name, state="dry", law=LAW, tests=TESTS, effects=(), result=res, like=like, loo=loo(ll))
-    out = root / "runs" / d.name / "cable-dry"
-    store_cable(fit, out, meta={"seed": seed, "made_by": "test", "damper_values": asdict(d)})
-    return out
+    return CableFit(damper=d.name, state="dry", law=LAW, tests=TESTS, effects=(), result=res, like=like, loo=loo(ll))
 
 
 @pytest.fixture(scope="module")

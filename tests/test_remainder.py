@@ -145,3 +145,21 @@ def test_cli_says_the_qualifier_first(tmp_path, capsys, damper):
     d = json.loads(out.read_text())
     assert rc == 0 and d["verdict"] == "none" and d["qualifier"] == "complete"
     assert first.startswith("damper2: verdict none — complete: ") and first.endswith(d["remainder"]["words"])
+
+
+def test_cable_cli_says_what_the_law_leaves(tmp_path, monkeypatch, capsys):
+    """``sbcal cable`` prints each stored fit's qualifier and the discrepancy predict and span will add
+    (the fit itself replaced by the fast one of the predict tests: the printing and storing are tested)."""
+    from sbcal.inference import cable_fit
+
+    from .test_predict import _fit
+
+    fit = _fit(tmp_path)
+    monkeypatch.setattr(cable_fit, "fit_damper_cable",
+                        lambda *a, **k: ({"iwan5": {"dry": fit}}, {"best": "iwan5", "families": {}}))
+    rc = main(["cable", "--damper", "damper1", "--bench", str(tmp_path / "bench.csv"), "--runs", str(tmp_path / "runs"),
+               "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    line = next(x for x in out.splitlines() if "what the law leaves" in x)
+    assert "partial (rms z" in line and "model discrepancy carried by predict and span" in line and "1 mm 0.0" in line

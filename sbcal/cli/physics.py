@@ -141,6 +141,13 @@ def cmd_cable(args) -> int:
         vals = ", ".join(f"{n} {p['median']:.3g} [{p['q05']:.3g}, {p['q95']:.3g}]" for n, p in s["parameters"].items())
         print(f"{damper.name} cable {state} ({best}, {len(fit.tests)} tests): {vals}; R-hat max {s['r_hat_max']:.3f}, "
               f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.0f} s{flag}")
+        r, d = s["remainder"], s["discrepancy"]
+        left = ("consistent with the noise: no model discrepancy" if r["qualifier"] == "complete" else
+                "model discrepancy carried by predict and span (sd ln|f| / phase): " + ", ".join(
+                    f"{a:g} mm {m:.3f} / {p:.2f} deg" for a, m, p in
+                    zip(d["amplitude_mm_pp"], d["logmag_sd"], d["phase_sd_deg"])))
+        print(f"  what the law leaves: {r['qualifier']} (rms z {r['rms_z']:.2f}, {r['lines_off']} of {r['n_lines']} "
+              f"lines off); {left}")
         print(f"  stored in {out}/")
     if len(fits) > 1:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
