@@ -140,7 +140,7 @@ def diagnosis_doc(tmp_path_factory):
                     config=DiagnoseConfig(draws=150))
 
 
-def test_report_shows_the_diagnosis(run_store, diagnosis_doc, tmp_path):
+def test_report_shows_the_diagnosis(run_store, diagnosis_doc, tmp_path, capsys):
     """A stored ``sbcal diagnose`` result gets its section: verdict, ranking, before/after, figure."""
     from sbcal.core._io import write_json
 
@@ -160,6 +160,13 @@ def test_report_shows_the_diagnosis(run_store, diagnosis_doc, tmp_path):
     assert words.startswith(f"{q}: ") and f"<b>What is left: {q}</b> — {escape(words[len(q) + 2:])}" in page
     assert page.index("What is left") < page.index("Rule: ")
     assert "figures/damper1_diagnosis.png" in p.imgs and (out / "figures/damper1_diagnosis.png").is_file()
+    # a hand-edited diagnosis with a malformed remainder: one line naming the file and the keys, exit 2
+    write_json(run_store / "damper1" / "diagnose.json", dict(diagnosis_doc, qualifier="mostly", remainder="ok"))
+    capsys.readouterr()
+    assert main(["report", "--runs", str(run_store), "-o", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "diagnose.json: keys 'qualifier', 'remainder'" in err and "\n" not in err
+    assert not (tmp_path / "bad" / "index.html").exists()
     (run_store / "damper1" / "diagnose.json").unlink()  # the other report tests see the store as before
 
 

@@ -261,6 +261,11 @@ def _diagnosis(path: Path, figs: Path):
         return None
     try:
         doc = json.loads(path.read_text())
+        rem, word = doc.get("remainder"), doc.get("qualifier")
+        if rem is not None and not (isinstance(rem, dict) and isinstance(rem.get("words"), str)
+                                    and word in ("complete", "partial", None)):
+            raise InputError(f"{path}: keys 'qualifier', 'remainder': expected complete, partial or null, and an "
+                             "object with its sentence 'words' (as sbcal diagnose writes them)")
         doc["figure"] = _diagnosis_figure(doc, figs / f"{doc['damper']}_diagnosis.png")
         if doc.get("curves") and doc["after"]["effect"] != "baseline":
             doc["curves_figure"] = _curves_figure(doc, figs / f"{doc['damper']}_curves.png")
