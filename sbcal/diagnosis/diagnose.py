@@ -303,7 +303,8 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
                  f"normal scores, p < {config.global_alpha:g}); then the best extension if delta_elpd > "
                  f"{config.clear_se:g} se and it removes >= {config.min_explained:.0%} of the misfit (squared z in the "
                  f"bands; without bands, the global excess over chance); else unexplained; no misfit: none. The same "
-                 "rule names a secondary effect on the verdict's model."),
+                 "rule names a secondary effect on the verdict's model, and judges what the final model leaves: "
+                 "no misfit, complete; else partial."),
         "ranking": ranking,
         "bands": [{k: b[k] for k in ("test", "quantity", "f_lo", "f_hi", "max_abs_z")} for b in bands],
         "global": glob0,
@@ -326,8 +327,9 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     return result
 
 
-def _secondary(primary, primary_fits, primary_check, case: _Case) -> dict | None:
-    """The second effect on top of the verdict's model (module docstring, step 5), or None."""
+def _secondary(primary, primary_fits, primary_check, case: _Case) -> tuple[dict, tuple | None]:
+    """The second effect on top of the verdict's model (module docstring, step 5): its JSON, and the model
+    with it when one is named (``(effect, check, fits)``), else None."""
     tests, likes, config = case.tests, case.likes, case.config
     z1, thr1, _, _, glob1, _ = primary_check
     bands1 = _bands(tests, likes, z1, thr1)
@@ -393,14 +395,11 @@ def _what_is_left(verdict, case: _Case, *, base_check, base_mean, bands, ranking
                     bands=_bands(tests, likes, c.z, c.thresholds), tried=(secondary or {}).get("ranking", []),
                     config=case.config, explained_by=added, screen=(secondary or {}).get("screen"))
     disc = discrepancy(likes, [mean[t] for t in tests], [var[t] for t in tests], partial=rem["qualifier"] == "partial")
+    level = dict(zip(disc["amplitude_mm_pp"], zip(disc["logmag_sd"], np.radians(disc["phase_sd_deg"]))))
     sd = {}
-    for t, lk in zip(tests, likes):  # the discrepancy at each line's amplitude (zero where none was estimated)
-        at = np.searchsorted(disc["amplitude_mm_pp"], lk.amplitude_mm_pp)
-        known = np.isin(lk.amplitude_mm_pp, disc["amplitude_mm_pp"])
-        d2 = np.stack([np.where(known, np.take(np.asarray(disc[k], float), np.minimum(at, len(disc[k]) - 1),
-                                                mode="clip") * f, 0.0) for k, f in
-                       (("logmag_sd", 1.0), ("phase_sd_deg", np.pi / 180))]) ** 2 if disc["amplitude_mm_pp"] else 0.0
-        sd[t] = np.sqrt(var[t] + d2)
+    for t, lk in zip(tests, likes):  # the discrepancy at each line's amplitude (zero where it has none)
+        d = np.array([level.get(a, (0.0, 0.0)) for a in lk.amplitude_mm_pp]).T  # (2, n_freq)
+        sd[t] = np.sqrt(var[t] + d ** 2)
     return rem, disc, sd
 
 
