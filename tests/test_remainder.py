@@ -163,3 +163,16 @@ def test_cable_cli_says_what_the_law_leaves(tmp_path, monkeypatch, capsys):
     assert rc == 0
     line = next(x for x in out.splitlines() if "what the law leaves" in x)
     assert "partial (rms z" in line and "model discrepancy carried by predict and span" in line and "1 mm 0.0" in line
+
+
+def test_a_stored_cable_judges_itself_as_the_diagnosis_does(tmp_path):
+    """The diagnosis stores its cable fits with the posterior curves it made (no second pass over the
+    draws): the remainder and discrepancy are those the store computes on its own, to the bit."""
+    from sbcal.diagnosis.fits import FitJob, _posterior
+    from sbcal.inference.cable_fit import _remainder
+
+    from .test_predict import _fit
+
+    fit = _fit(tmp_path)
+    post = _posterior(FitJob(("strand_slip", "dry", "iwan5"), fit.like, None, DiagnoseConfig(), fit.tests), fit.result)
+    assert _remainder(fit, (post["mu_mean"], post["mu_var"])) == _remainder(fit)

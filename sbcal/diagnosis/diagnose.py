@@ -451,4 +451,4 @@ def _store_cables(damper, fits, *, store, seed, comparison) -> None:
                        result=f["result"], like=f["like"], loo=f["loo"])
         store_cable(fit, cable_dir(store, damper.name, state),
                     meta={"seed": seed, "made_by": "sbcal diagnose", "damper_values": asdict(damper)},
-                    comparison=comparison)
+                    comparison=comparison, curves=(f["mu_mean"], f["mu_var"]))  # its posterior curves, made once

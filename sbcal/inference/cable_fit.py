@@ -370,17 +370,19 @@ def _curvature_ranges(fit: CableFit) -> dict:
     return out
 
 
-def _remainder(fit: CableFit) -> tuple[dict, dict]:
+def _remainder(fit: CableFit, curves=None) -> tuple[dict, dict]:
     """What the fit leaves, judged as the diagnosis judges a verdict's model (:mod:`sbcal.inference.checks`):
     ``(remainder, discrepancy)``. ``remainder``: the ``qualifier`` (``complete``/``partial``), rms z, lines
     off and the global check of the run means about the posterior curves (every draw); ``discrepancy``:
     per calibrated amplitude the spread beyond the noise (zero when ``complete``), which ``sbcal predict``
     adds to its bands (:func:`sbcal.design.predict.model_error_of`)."""
     like = fit.like
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        moments = [curve_moments(mu) for mu in like.predict(fit.result.flat())]
-    mean, var = [m[0] for m in moments], [m[1] for m in moments]
+    if curves is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            moments = [curve_moments(mu) for mu in like.predict(fit.result.flat())]
+        curves = [m[0] for m in moments], [m[1] for m in moments]
+    mean, var = curves
     check = predictive_check(like.likes, mean, var, ALPHA, like.prior.ndim)
     word = qualifier(check, GLOBAL_ALPHA)
     remainder = {"qualifier": word, "rms_z": check.rms_z, "lines_off": check.lines_off, "n_lines": check.n_lines,
@@ -388,14 +390,16 @@ def _remainder(fit: CableFit) -> tuple[dict, dict]:
     return remainder, discrepancy(like.likes, mean, var, partial=word == "partial")
 
 
-def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None) -> dict:
+def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None, curves=None) -> dict:
     """Write ``posterior.nc`` + ``summary.json`` of a cable fit into ``directory``; returns the summary.
 
     The netCDF holds the posterior, the log-probability, the pointwise log-likelihood by run
     (``runs``, dim ``obs`` with ``obs_test``/``obs_run`` coordinates), the lines (frequency, amplitude,
     test) and the run means observed. The summary adds the law, the tests, each test's curvature range
     and folds, what the fit leaves (``remainder``, ``discrepancy``: :func:`_remainder`), the convergence and
-    (with ``comparison``) the family comparison.
+    (with ``comparison``) the family comparison. ``curves``: the posterior mean and variance of the model
+    curves per test (``([mean], [var])``, :func:`sbcal.inference.checks.curve_moments` of every draw) when
+    the caller has them, else computed here.
     """
     from ..core._io import write_json
     from .runs import parameter_summary, versions, write_inference_data
@@ -410,7 +414,7 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "tests": list(fit.tests), "parameters": parameter_summary(res), **res.convergence_dict(),
         "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
         "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
-        **dict(zip(("remainder", "discrepancy"), _remainder(fit))),
+        **dict(zip(("remainder", "discrepancy"), _remainder(fit, curves))),
         "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
         "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
     }
