@@ -33,7 +33,7 @@ previous line's; where a line has two steady states (a fold) it is flagged.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -42,12 +42,17 @@ from .cable_sections import (_TINY, _Arms, _Compliance, _compliance_table, _gaus
                              _lookup, _widely_solve, _Work, segments_from_frequencies)
 from .damper import GEOMETRY, Damper
 from .hysteresis import HysteresisLaw
+from .zones import ZonedLaw
 
 
 __all__ = ["DEFAULT_SECTIONS", "CableState", "CableModel", "segments_from_frequencies"]
 
 DEFAULT_SECTIONS = 8
-"""Gauss-Legendre sections per arm of :class:`CableModel` (the convergence study of ``docs/cable.md``)."""
+"""Gauss-Legendre sections per arm of :class:`CableModel` (the convergence study of ``docs/cable.md``);
+with a zoned law (:class:`sbcal.model.zones.ZonedLaw`), of the arm's middle zone."""
+
+DEFAULT_ZONE_SECTIONS = 3
+"""Gauss-Legendre sections of each boundary zone of a zoned law (``docs/cable.md``)."""
 
 _BASE = ("EJ_min", "beta_material", "rocking_rad_per_m")
 _STEP_CAP = 0.5  # fast model: a Newton step is at most this fraction of |P|
@@ -147,8 +152,9 @@ class CableState:
         Estimated relative error of the loads ``P`` (max over the arms; see :attr:`CableModel.tol`).
     iterations : int
         Newton iterations (the largest per entry), summed over the passes.
-    sections : ndarray, shape (sections,)
-        Section positions from the clamp, as fractions of the arm's length.
+    sections : ndarray, shape (sections,), or (n_sets, sections) with a zoned law
+        Section positions from the clamp, as fractions of the arm's length (a zoned law's: each zone's
+        Gauss sections, middle, clamp zone, mass zone, per set).
     """
 
     f_uu: np.ndarray
@@ -203,6 +209,7 @@ class CableModel(_CableBase):
     """
 
     sections: int = DEFAULT_SECTIONS
+    zone_sections: int = DEFAULT_ZONE_SECTIONS
     table_points: int = 96
     table_decades: float = 3.0
     max_iter: int = 30
@@ -213,6 +220,8 @@ class CableModel(_CableBase):
     def __post_init__(self):
         if int(self.sections) != self.sections or self.sections < 2:
             raise InputError(f"sections: expected an integer >= 2, got {self.sections!r}")
+        if int(self.zone_sections) != self.zone_sections or self.zone_sections < 1:
+            raise InputError(f"zone_sections: expected an integer >= 1, got {self.zone_sections!r}")
         if int(self.table_points) != self.table_points or self.table_points < 4:
             raise InputError(f"table_points: expected an integer >= 4, got {self.table_points!r}")
         if not (np.isfinite(self.table_decades) and self.table_decades > 0):
@@ -223,16 +232,48 @@ class CableModel(_CableBase):
 
     # --- set-up -------------------------------------------------------------------------------
 
+    @property
+    def zoned(self) -> bool:
+        """The law changes along the arm (:class:`sbcal.model.zones.ZonedLaw`)."""
+        return isinstance(self.law, ZonedLaw)
+
     def _table(self, p, n_sets) -> _Compliance:
+        """The sections' compliance table: a row per parameter set; a zoned law's rows are its zones'
+        (:data:`sbcal.model.zones.ZONES` order), ``zone * n_sets + set``."""
         lin = np.broadcast_to(p["EJ_min"] * (1 + 1j * p["beta_material"]), (n_sets,)).astype(complex)
         if self.law is None:
             return _linear_compliance(lin)
-        lp = {k: np.broadcast_to(p[k], (n_sets,))[:, None] for k in self.law.parameter_names}
-        return _compliance_table(self.law, lp, lin, int(self.table_points), float(self.table_decades))
+        if not self.zoned:
+            lp = {k: np.broadcast_to(p[k], (n_sets,))[:, None] for k in self.law.parameter_names}
+            return _compliance_table(self.law, lp, lin, int(self.table_points), float(self.table_decades))
+        zones = self.law.zones({k: p[k] for k in self.law.parameter_names})
+        lp = {k: np.concatenate([np.broadcast_to(z[2][k], (n_sets,)) for z in zones])[:, None]
+              for k in self.law.base.parameter_names}
+        lins = np.concatenate([lin * np.broadcast_to(z[3], (n_sets,)) for z in zones])
+        table = _compliance_table(self.law.base, lp, lins, int(self.table_points), float(self.table_decades))
+        return replace(table, monotone=table.monotone.reshape(len(zones), n_sets).all(axis=0))
+
+    def _zone_rule(self, p, n_sets):
+        """A zoned law's sections per parameter set: eta (Q, n_sets) from the mass node, weights (Q,
+        n_sets) and the zone index of each section (Q,), Gauss-Legendre within each zone (the law
+        jumps at a zone's edge: one rule across it would not converge)."""
+        x, w = _gauss(int(self.sections))
+        xz, wz = _gauss(int(self.zone_sections))
+        zc = np.broadcast_to(p["clamp_zone"], (n_sets,))
+        zm = np.broadcast_to(p["mass_zone"], (n_sets,))
+        eta, wt, zone = [], [], []
+        # eta = 1 - s/L: the mass zone is [0, zm], the middle [zm, 1 - zc], the clamp zone [1 - zc, 1]
+        for k, (lo, hi, xs, ws) in enumerate(((zm, 1.0 - zc, x, w), (1.0 - zc, np.ones(n_sets), xz, wz),
+                                              (np.zeros(n_sets), zm, xz, wz))):
+            eta.append(lo[None, :] + (hi - lo)[None, :] * xs[:, None])
+            wt.append((hi - lo)[None, :] * ws[:, None])
+            zone.append(np.full(xs.size, k))
+        return np.concatenate(eta), np.concatenate(wt), np.concatenate(zone)
 
     @staticmethod
-    def _arms(p, n_sets, omega, x0) -> _Arms:
-        """The per-entry constants (see :class:`_Arms`) from the damper's consistent mass matrices."""
+    def _arms(p, n_sets, omega, x0, rule=None) -> _Arms:
+        """The per-entry constants (see :class:`_Arms`) from the damper's consistent mass matrices
+        (``rule``: a zoned law's sections per set, :meth:`_zone_rule`)."""
         nf = omega.size
 
         def full(a1, a2):
@@ -268,7 +309,14 @@ class CableModel(_CableBase):
         fa, fb = -(1.0 + u0) / L, -u1
         fc = -w2 * cm * (156 * w0 + 22 * L * t0) + w2 * (u0 * (b00 * w0 + b01 * t0) + u1 * (b10 * w0 + b11 * t0))
         row = np.broadcast_to(np.arange(n_sets)[:, None, None], (n_sets, nf, 2)).reshape(-1)
-        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L)
+        if rule is None:
+            return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L)
+        eta, w, zone = rule
+        eta, w = eta[:, row], w[:, row]  # (Q, b)
+        weights = np.ascontiguousarray(eta[None] ** np.arange(4, -1, -1)[:, None, None] * w[None])
+        zrow = np.ascontiguousarray(zone[:, None] * n_sets + row[None, :]).astype(np.intp)
+        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L, eta=np.ascontiguousarray(eta),
+                     weights=weights, zrow=zrow)
 
     # --- Newton on the node loads ---------------------------------------------------------------
 
@@ -279,23 +327,32 @@ class CableModel(_CableBase):
         weight ``w eta^(2-k)`` (sk, sd) or ``w eta^(4-k)`` (se); and the sections' (Kr, Ki, |M|^-2),
         each (Q, b). All are :class:`_Work` buffers, valid until the next call.
         """
-        eta, wp = self._rule
-        q, b = eta.size, p0.size
+        b = p0.size
+        zoned = arms.eta is not None
+        eta, wp = (arms.eta, arms.weights) if zoned else self._rule
+        q = eta.shape[0]
         # |M|^2 along the arm, a quadratic in eta: |p0|^2 eta^2 + 2 Re(p0 conj p1) eta + |p1|^2
         m2 = _Work.get("m2", (q, b))
-        np.multiply.outer(eta, p0.real**2 + p0.imag**2, out=m2)
+        if zoned:
+            np.multiply(eta, p0.real**2 + p0.imag**2, out=m2)
+        else:
+            np.multiply.outer(eta, p0.real**2 + p0.imag**2, out=m2)
         m2 += 2.0 * (p0.real * p1.real + p0.imag * p1.imag)
-        m2 *= eta[:, None]
+        m2 *= eta if zoned else eta[:, None]
         m2 += p1.real**2 + p1.imag**2
         kd = _Work.get("kd", (q, 4, b))  # Kr, Ki, Dr, Di: one block for one matrix product
-        _lookup(table, m2, arms.row, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
+        _lookup(table, m2, arms.zrow if zoned else arms.row, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
         np.maximum(m2, _TINY, out=m2)
         np.reciprocal(m2, out=m2)
         e = _Work.get("e", (q, 2, b))
         np.multiply(kd[:, 2], m2, out=e[:, 0])
         np.multiply(kd[:, 3], m2, out=e[:, 1])
-        s4 = np.matmul(wp[2:], kd.reshape(q, 4 * b), out=_Work.get("s4", (3, 4 * b))).reshape(3, 4, b)
-        s2 = np.matmul(wp, e.reshape(q, 2 * b), out=_Work.get("s2", (5, 2 * b))).reshape(5, 2, b)
+        if zoned:  # each entry its own weights: a sum over the sections per entry
+            s4 = np.einsum("kqb,qjb->kjb", wp[2:], kd, out=_Work.get("s4", (3, 4, b)))
+            s2 = np.einsum("kqb,qjb->kjb", wp, e, out=_Work.get("s2", (5, 2, b)))
+        else:
+            s4 = np.matmul(wp[2:], kd.reshape(q, 4 * b), out=_Work.get("s4", (3, 4 * b))).reshape(3, 4, b)
+            s2 = np.matmul(wp, e.reshape(q, 2 * b), out=_Work.get("s2", (5, 2 * b))).reshape(5, 2, b)
         out = []
         for name, src, i in (("sk", s4, 0), ("sd", s4, 2), ("se", s2, 0)):
             z = _Work.get(name, (src.shape[0], b), complex)
@@ -469,7 +526,7 @@ class CableModel(_CableBase):
             return self._subset(damper, f, amp, seg, continuation, p, n_sets, valid, full)
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
-        arms = self._arms(p, n_sets, omega, x0)
+        arms = self._arms(p, n_sets, omega, x0, self._zone_rule(p, n_sets) if self.zoned else None)
         sol = self._newton(table, arms, self._start(table, arms))
         iterations = int(sol[2].max())
         fold = np.zeros((n_sets, f.size), dtype=bool)
@@ -505,18 +562,27 @@ class CableModel(_CableBase):
         a2 = p0.real**2 + p0.imag**2
         eta = np.clip(-(p0 * np.conj(p1)).real / np.maximum(a2, _TINY), 0.0, 1.0)
         m2 = np.abs(np.stack([p1, p0 + p1, p0 * eta + p1])) ** 2
-        kr, ki, _, _ = _lookup(table, m2, arms.row)
+        row = arms.row
+        if arms.eta is not None:  # each end in its zone, eta* in the zone that holds it
+            zc, zm = (np.broadcast_to(p[k], (n_sets,))[arms.row] for k in ("clamp_zone", "mass_zone"))
+            mid = np.where(eta < zm, 2, np.where(eta > 1.0 - zc, 1, 0))
+            row = np.stack([2 * n_sets + arms.row, n_sets + arms.row, mid * n_sets + arms.row])
+        kr, ki, _, _ = _lookup(table, m2, row)
         ends = per_line(np.sqrt(m2) * np.hypot(kr, ki)).reshape(n_sets, nf, -1)
         step = step.reshape(n_sets, nf, 2).max(axis=-1)
+        if arms.eta is None:
+            sections = 1.0 - self._rule[0]
+        else:
+            sections = 1.0 - arms.eta.reshape(-1, n_sets, nf, 2)[:, :, 0, 0].T
         return CableState(f_uu=f_uu, load=load, curvature=curvature, rigidity=per_line(1.0 / ksec),
                           curvature_range=np.stack([ends.min(axis=-1), ends.max(axis=-1)], axis=-1),
                           converged=step < self.tol, fold=fold, residual=step, iterations=iterations,
-                          sections=1.0 - self._rule[0])
+                          sections=sections)
 
     def _subset(self, damper, f, amp, seg, continuation, p, n_sets, valid, full):
         """Solve the valid sets only; the others get NaN (outside the law's domain)."""
         keep, sub = self._valid_subset(p, n_sets, valid)
-        nf, q = f.size, int(self.sections)
+        nf, q = f.size, int(self.sections) + (2 * int(self.zone_sections) if self.zoned else 0)
         if amp.ndim == 2 and amp.shape[0] == n_sets > 1:
             amp = amp[keep]
         if not full:
@@ -528,10 +594,16 @@ class CableModel(_CableBase):
                    curvature=np.full((n_sets, nf, 2, q), np.nan), rigidity=np.full((n_sets, nf, 2, q), np.nan + 0j),
                    curvature_range=np.full((n_sets, nf, 2), np.nan), converged=np.zeros((n_sets, nf), dtype=bool),
                    fold=np.zeros((n_sets, nf), dtype=bool), residual=np.full((n_sets, nf), np.inf))
-        iterations = 0
+        iterations, sections = 0, 1.0 - self._rule[0]
         if keep.size:
-            iterations = self._scatter(out, keep, self._run(damper, f, amp, seg, continuation, sub, full=True))
-        return CableState(**out, iterations=iterations, sections=1.0 - self._rule[0])
+            st = self._run(damper, f, amp, seg, continuation, sub, full=True)
+            iterations = self._scatter(out, keep, st)
+            if self.zoned:
+                sections = np.full((n_sets, q), np.nan)
+                sections[keep] = st.sections
+        elif self.zoned:
+            sections = np.full((n_sets, q), np.nan)
+        return CableState(**out, iterations=iterations, sections=sections)
 
     def _continuation(self, table, arms, sol, seg, n_sets, nf):
         """Follow a sweep up each test: a line's answer is the steady state reached from its

@@ -222,7 +222,7 @@ def _lookup(table: _Compliance, m2, row, out=None, log=True):
     """Section compliance and its slope from the table.
 
     ``m2 = |M|^2`` [(N m)^2], shape (..., b) (``log=False``: ``ln |M|^2`` already); ``row`` (b,)
-    the parameter set of each entry. Returns ``(Kr, Ki, Dr, Di)``, ``D = dK/dy`` (written into
+    the parameter set (table row) of each entry, or of each section (m2's shape). Returns ``(Kr, Ki, Dr, Di)``, ``D = dK/dy`` (written into
     ``out``, four arrays of m2's shape, when given). Scratch from :class:`_Work`.
     """
     shape = m2.shape
@@ -280,7 +280,7 @@ def _tails(table, y, row, out, where, side):
     the flat indices of the sections beyond the nodes, ``side`` True above the last one.
     """
     at = np.unravel_index(where, y.shape)
-    r = row[at[-1]]
+    r = row[at] if row.ndim == y.ndim else row[at[-1]]
     side = side.astype(np.intp)
     ref = table.refs[r, side]
     gap = table.ends[r, side] - ref
@@ -335,11 +335,18 @@ class _Arms:
     force: tuple  # (fa, fb, fc) real
     row: np.ndarray  # table row (parameter set) of each entry, intp
     length: np.ndarray  # arm length [m]
+    # a zoned cable (sbcal.model.zones): each entry's own sections, (Q, b) eta and table row, (5, Q, b) weights
+    # w eta^(4-k); None: the model's one rule and the entry's row for every section
+    eta: np.ndarray | None = None
+    weights: np.ndarray | None = None
+    zrow: np.ndarray | None = None
 
     def take(self, idx):
         """The constants of the entries ``idx``."""
+        zoned = {} if self.eta is None else dict(eta=self.eta[:, idx], weights=self.weights[:, :, idx],
+                                                 zrow=self.zrow[:, idx])
         return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force),
-                     row=self.row[idx], length=self.length[idx])
+                     row=self.row[idx], length=self.length[idx], **zoned)
 
 
 def _gauss(q: int):

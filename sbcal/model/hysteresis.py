@@ -49,11 +49,12 @@ from ..core.errors import InputError
 from .bouc_wen import BoucWenLaw, DahlLaw
 from .iwan import Iwan5Law, IwanLaw, IwanTailLaw, LognormalIwanLaw
 from .law_base import HysteresisLaw, LawParameter, jenkins_rigidity
+from .zones import ZONED_SUFFIX, ZonedLaw
 
 
 __all__ = [
     "LawParameter", "HysteresisLaw", "DahlLaw", "BoucWenLaw", "IwanLaw", "Iwan5Law", "IwanTailLaw",
-    "LognormalIwanLaw", "LAWS", "FITTED_LAWS", "law_for", "jenkins_rigidity",
+    "LognormalIwanLaw", "ZonedLaw", "LAWS", "FITTED_LAWS", "law_for", "zoned", "jenkins_rigidity",
 ]
 
 LAWS = {law.name: law for law in (BoucWenLaw, Iwan5Law, IwanTailLaw, DahlLaw, IwanLaw, LognormalIwanLaw)}
@@ -67,7 +68,14 @@ virtual bench's own."""
 
 
 def law_for(name: str) -> HysteresisLaw:
-    """A law instance by name (:data:`LAWS`); one-line InputError for an unknown name."""
-    if name not in LAWS:
-        raise InputError(f"unknown hysteresis law {name!r}; known: {', '.join(LAWS)}")
-    return LAWS[name]()
+    """A law instance by name (:data:`LAWS`, or a family of them with ``_zoned``: its
+    :class:`sbcal.model.zones.ZonedLaw`); one-line InputError for an unknown name."""
+    base = name[:-len(ZONED_SUFFIX)] if name.endswith(ZONED_SUFFIX) else name
+    if base not in LAWS:
+        raise InputError(f"unknown hysteresis law {name!r}; known: {', '.join(LAWS)} (each also with {ZONED_SUFFIX})")
+    return ZonedLaw(LAWS[base]()) if base != name else LAWS[base]()
+
+
+def zoned(name: str) -> str:
+    """The zoned family of the law ``name`` (``iwan5`` -> ``iwan5_zoned``)."""
+    return name if name.endswith(ZONED_SUFFIX) else name + ZONED_SUFFIX

@@ -1,0 +1,108 @@
+"""A strand-slip law that changes along the arm: boundary zones at the clamp and at the mass (``docs/cable.md``).
+
+Where the messenger is swaged into the clamp and into the masses the wires are pressed together:
+near either end the cable is stiffer when stuck and slips at other curvatures than in its free
+middle. :class:`ZonedLaw` gives each arm three zones along its length ``s`` (from the clamp):
+
+==========  ==========================  ==========================================================
+zone        where                       law
+==========  ==========================  ==========================================================
+clamp       ``0 <= s/L < clamp_zone``   the middle's family with ``EJ_min``, ``delta_EJ`` and every
+                                        curvature scale of the law (unit 1/m) times the zone's ratios
+middle      between                     the law of the family's own parameters
+mass        ``1 - mass_zone < s/L``     as the clamp zone, with its own ratios
+==========  ==========================  ==========================================================
+
+The shape parameters (exponents, sharpness, ratios of the law) are the middle's in every zone: what a
+swage changes is how hard the wires are pressed (the stuck and slipped rigidities) and how far they
+bend before they slip (the curvature scales), not how the wires' slip curvatures are spread. Ratios
+rather than the zones' own values: a ratio of 1 is the uniform law, and in ratios the zones' values
+mix less with the middle's (docs/cable.md, "Identifiability").
+
+The section models use :meth:`ZonedLaw.zones`; :meth:`HysteresisLaw.slip_rigidity` of a zoned law is its
+middle's (the curve of the free cable).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .law_base import HysteresisLaw, LawParameter
+
+
+__all__ = ["ZONED_SUFFIX", "ZONE_PARAMETERS", "ZONES", "ZonedLaw"]
+
+ZONED_SUFFIX = "_zoned"
+"""A zoned family's name is its middle's plus this (``iwan5_zoned``)."""
+
+ZONES = ("middle", "clamp", "mass")
+"""The zones, in the order the section models stack their tables."""
+
+
+def _zone_parameters(zone: str) -> tuple:
+    where = "from the clamp" if zone == "clamp" else "from the mass"
+    return (
+        LawParameter(f"{zone}_zone", "1", f"length of the {zone} zone {where}, as a fraction of the arm", high=0.5),
+        LawParameter(f"{zone}_EJ_min_ratio", "1", f"the {zone} zone's EJ_min over the middle's"),
+        LawParameter(f"{zone}_delta_EJ_ratio", "1", f"the {zone} zone's delta_EJ over the middle's"),
+        LawParameter(f"{zone}_chi_ratio", "1", f"the {zone} zone's curvature scales over the middle's"),
+    )
+
+
+ZONE_PARAMETERS = _zone_parameters("clamp") + _zone_parameters("mass")
+"""The parameters a zoned law adds to its middle's."""
+
+
+@dataclass(frozen=True)
+class ZonedLaw(HysteresisLaw):
+    """The law ``base`` in the middle of each arm, scaled versions of it in the clamp and mass zones.
+
+    Attributes
+    ----------
+    base : HysteresisLaw
+        The middle's family.
+    """
+
+    base: HysteresisLaw = None
+
+    @property
+    def name(self) -> str:
+        return self.base.name + ZONED_SUFFIX
+
+    @property
+    def parameters(self) -> tuple:
+        return self.base.parameters + ZONE_PARAMETERS
+
+    @property
+    def ordered(self) -> tuple:
+        return self.base.ordered
+
+    @property
+    def min_tests(self) -> int:
+        return self.base.min_tests
+
+    def _rigidity(self, chi, **p):
+        return self.base._rigidity(chi, **{k: p[k] for k in self.base.parameter_names})
+
+    def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:
+        return self.base.steady_loop(chi_a, theta, **{k: params[k] for k in self.base.parameter_names})
+
+    def zones(self, params: dict) -> list:
+        """Per zone of :data:`ZONES`: ``(name, (start, end) as fractions of the arm from the clamp, law
+        parameters, EJ_min ratio)``; values broadcast as given (scalars or per parameter set)."""
+        base = {k: params[k] for k in self.base.parameter_names}
+        units = {p.name: p.unit for p in self.base.parameters}
+        clamp, mass = params["clamp_zone"], params["mass_zone"]
+        out = [("middle", (clamp, 1.0 - np.asarray(mass)), base, 1.0)]
+        for zone, span in (("clamp", (0.0 * np.asarray(clamp), clamp)), ("mass", (1.0 - np.asarray(mass), 1.0))):
+            lp = {}
+            for k, v in base.items():
+                if units[k] == "N m^2":
+                    v = v * params[f"{zone}_delta_EJ_ratio"]
+                elif units[k] == "1/m":
+                    v = v * params[f"{zone}_chi_ratio"]
+                lp[k] = v
+            out.append((zone, span, lp, params[f"{zone}_EJ_min_ratio"]))
+        return out
