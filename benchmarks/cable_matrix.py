@@ -1,12 +1,26 @@
 """The cross-law matrix: data made with each cable law, fitted with each fitted family (issue 13).
 
-Usage: python benchmarks/cable_matrix.py [--seed 2029] [--laws bouc_wen iwan5 lognormal_iwan iwan_tail]
-       [--families bouc_wen iwan5 iwan_tail] [--json OUT]
+Usage: python benchmarks/cable_matrix.py [--seed 2029] [--rows bouc_wen iwan5 lognormal_iwan iwan_tail
+       zoned_bouc_wen zoned_iwan5] [--families bouc_wen iwan5 iwan_tail] [--json OUT] [--data DIR]
 
 On a geometry not used in development (the stubby damper of ``benchmarks/diagnose_matrix.py``), the
 virtual bench records the thesis's test plan (0.1 ... 2 mm, 16 runs per test) with its cable drawn
-from each law: the fitted families (``bouc_wen``, ``iwan5``, ``iwan_tail``; ``--families`` narrows the
-diagnosis's comparison) and the bench-only ``lognormal_iwan``. For each data set:
+from each row (``--rows``, alias ``--laws``): a law along the whole arm, the fitted families
+(``bouc_wen``, ``iwan5``, ``iwan_tail``; ``--families`` narrows the diagnosis's comparison) and the
+bench-only ``lognormal_iwan``; and two zoned cables, richer than any fitted model (issue 20): stiffer
+when stuck and slipping later where the cable is swaged, 0.2 of the arm at the clamp in a law of
+another shape than the middle's and 0.1 at the mass (``ROWS``):
+
+- ``zoned_bouc_wen``: ``bouc_wen`` (n = 2) in the middle; at the clamp a Dahl knee (n = 1, the fitted
+  zoned law keeps the middle's n), ``EJ_min`` x2, ``delta_EJ`` x2.5, slip curvature 3x ``chi_slip``;
+  at the mass the middle's law with ``EJ_min``, ``delta_EJ`` x1.5, curvatures x2;
+- ``zoned_iwan5``: ``iwan5`` in the middle; at the clamp ``lognormal_iwan`` (outside the fitted
+  families; its half-rigidity curvature 2.5x the middle's), ``EJ_min`` and ``delta_EJ`` x2; at the mass
+  the middle's law with ``EJ_min``, ``delta_EJ`` x1.5, curvatures x2.5.
+
+``--data DIR`` only records: each row's bench CSV into DIR (``<row>.csv``) and, for the zoned rows,
+how far their noise-free curves are from the same cable without zones; no diagnosis. For each data
+set otherwise:
 
 - ``sbcal diagnose``'s verdict (it must be ``strand_slip``), the best family by PSIS-LOO, and whether
   its joint posterior converged;
@@ -16,7 +30,7 @@ diagnosis's comparison) and the bench-only ``lognormal_iwan``. For each data set
   and phase [deg].
 
 Targets: the verdict model within 2 % and 1.5 deg when the law is one of the fitted families, within
-4 % and 3 deg across laws, at every amplitude from 0.1 to 2 mm.
+4 % and 3 deg across laws (and for the zoned rows), at every amplitude from 0.1 to 2 mm.
 """
 
 from __future__ import annotations
@@ -39,8 +53,11 @@ from sbcal.data.readers import load_bench  # noqa: E402
 from sbcal.inference.cable_fit import cable_likelihood, read_cable  # noqa: E402
 from sbcal.model.damper import load_damper  # noqa: E402
 from sbcal.diagnosis.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from sbcal.model.cable_element import CableZone  # noqa: E402
 from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
-from sbcal.simulate.virtual_bench import DEFAULT_TESTS, BenchConfig, SlipLaw, record, response  # noqa: E402
+from sbcal.model.fem import STANDARD_GRID_HZ  # noqa: E402
+from sbcal.simulate.virtual_bench import (DEFAULT_TESTS, BenchConfig, SlipLaw, record, response,  # noqa: E402
+                                          test_amplitude)
 
 LAWS = {  # law parameters; delta_EJ as a fraction of ej_static
     "bouc_wen": {"chi_slip": 0.008, "sharpness": 2.0, "delta_EJ": 0.4},
@@ -48,6 +65,18 @@ LAWS = {  # law parameters; delta_EJ as a fraction of ej_static
     "lognormal_iwan": {"chi_median": 0.005, "log_spread": 1.8, "delta_EJ": 0.4},
     "iwan_tail": {"chi_micro": 3e-4, "chi_tail": 0.02, "density_exponent": -0.8, "tail_exponent": -1.7, "delta_EJ": 0.4},
 }
+ROWS = {  # the middle's law and its parameters (as LAWS), the zones (their delta_EJ as ratios to the middle's)
+    **{law: {"law": law, "params": p, "zones": ()} for law, p in LAWS.items()},
+    "zoned_bouc_wen": {"law": "bouc_wen", "params": LAWS["bouc_wen"], "zones": (
+        CableZone("clamp", 0.2, "dahl", (("chi_dahl", 0.024),), EJ_min_ratio=2.0, delta_EJ_ratio=2.5),
+        CableZone("mass", 0.1, EJ_min_ratio=1.5, delta_EJ_ratio=1.5, chi_ratio=2.0))},
+    "zoned_iwan5": {"law": "iwan5", "params": LAWS["iwan5"], "zones": (
+        CableZone("clamp", 0.2, "lognormal_iwan", (("chi_median", 0.015), ("log_spread", 1.2)), EJ_min_ratio=2.0,
+                  delta_EJ_ratio=2.0),
+        CableZone("mass", 0.1, EJ_min_ratio=1.5, delta_EJ_ratio=1.5, chi_ratio=2.5))},
+}
+"""The matrix's rows in the order of their seeds (``[seed, row index]``: a row added at the end leaves
+the others' data unchanged)."""
 TESTS = tuple(t for t in DEFAULT_TESTS if t != "2-1")  # the constant-amplitude tests: errors per amplitude
 
 
@@ -55,15 +84,50 @@ def _wrap_deg(a):
     return (a + 180.0) % 360.0 - 180.0
 
 
-def run_law(damper, law: str, seed: int, tmp: Path, families=FITTED_LAWS) -> dict:
-    p = dict(LAWS[law], delta_EJ=LAWS[law]["delta_EJ"] * damper.ej_static)
-    slip = SlipLaw(law=law, params=tuple(p.items()))
+def bench_config(damper, row: str, zones: bool = True) -> BenchConfig:
+    """The row's bench (``zones=False``: the same cable without its zones)."""
+    spec = ROWS[row]
+    p = dict(spec["params"], delta_EJ=spec["params"]["delta_EJ"] * damper.ej_static)
+    slip = SlipLaw(law=spec["law"], params=tuple(p.items()), zones=spec["zones"] if zones else ())
     # slip_tol 1e-8 on ln(chi): Newton stalls at ~3e-9 on this geometry's 4 Hz line (rounding), where
     # the default 1e-9 refuses the recording; a 1e-8 relative curvature error is far below the noise
-    config = BenchConfig(params={"EJ": 0.05 * damper.ej_static, "beta": 0.05}, effects={"strand_slip": slip}, runs=16,
-                         slip_tol=1e-8)
+    return BenchConfig(params={"EJ": 0.05 * damper.ej_static, "beta": 0.05}, effects={"strand_slip": slip}, runs=16,
+                       slip_tol=1e-8)
+
+
+def record_row(damper, row: str, seed: int, path: Path) -> BenchConfig:
+    """Record the row's bench CSV at ``path``; its config."""
+    config = bench_config(damper, row)
+    write_bench(record(damper, config, TESTS, rng=np.random.default_rng([seed, list(ROWS).index(row)])), path)
+    return config
+
+
+def zone_effect(damper, row: str) -> dict:
+    """Per test: rms and largest difference of the row's noise-free curves from the same cable without
+    its zones, magnitude [%] (of ln|f|) and phase [deg]."""
+    zoned, uniform = (bench_config(damper, row, zones).ideal() for zones in (True, False))
+    out = {}
+    f = STANDARD_GRID_HZ
+    for t in TESTS:
+        amp = test_amplitude(t, f)
+        fz, fu = (response(damper, f, amp, c.params, c.effects, tol=c.slip_tol, max_iter=c.slip_max_iter)[0]
+                  for c in (zoned, uniform))
+        d = np.log(fz / fu)
+        out[t] = {"magnitude_rms_pct": float(100 * np.sqrt(np.mean(d.real**2))),
+                  "magnitude_max_pct": float(100 * np.abs(d.real).max()),
+                  "phase_rms_deg": float(np.degrees(np.sqrt(np.mean(_wrap_rad(d.imag) ** 2)))),
+                  "phase_max_deg": float(np.degrees(np.abs(_wrap_rad(d.imag)).max()))}
+    return out
+
+
+def _wrap_rad(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def run_law(damper, law: str, seed: int, tmp: Path, families=FITTED_LAWS) -> dict:
+    """One row (``law`` a key of :data:`ROWS`): record, diagnose, compare the verdict's curves with the truth."""
     path = tmp / f"{law}.csv"
-    write_bench(record(damper, config, TESTS, rng=np.random.default_rng([seed, list(LAWS).index(law)])), path)
+    config = record_row(damper, law, seed, path)
     bench = clean_bench(load_bench(path))
     t0 = time.perf_counter()
     verdict = diagnose(damper, bench, seed=seed, progress=False, store=tmp / law,
@@ -96,15 +160,20 @@ def run_law(damper, law: str, seed: int, tmp: Path, families=FITTED_LAWS) -> dic
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=2029)
-    ap.add_argument("--laws", nargs="+", choices=list(LAWS), default=list(LAWS))
+    ap.add_argument("--rows", "--laws", dest="rows", nargs="+", choices=list(ROWS), default=list(ROWS),
+                    help="the rows to run (default all; --laws is the old name)")
     ap.add_argument("--families", nargs="+", choices=list(FITTED_LAWS), default=list(FITTED_LAWS))
     ap.add_argument("--json", metavar="OUT")
+    ap.add_argument("--data", metavar="DIR", help="only record each row's bench CSV into DIR (and, for a zoned row, "
+                                                  "its difference from the cable without zones); no diagnosis")
     args = ap.parse_args(argv)
+    if args.data:
+        return record_only(args)
     results, ok = [], True
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "stub.toml").write_text(STUB)
         damper = load_damper(Path(tmp) / "stub.toml")
-        for law in args.laws:
+        for law in args.rows:
             r = run_law(damper, law, args.seed, Path(tmp), args.families)
             results.append(r)
             print(f"data {law}: verdict {r['verdict']} ({r['verdict_law']} law), secondary "
@@ -116,7 +185,7 @@ def main(argv=None) -> int:
             if r["verdict"] != "strand_slip":
                 ok = False
                 continue
-            matched = r["verdict_law"] == law and law in args.families
+            matched = r["verdict_law"] == law and law in args.families  # a zoned row is never its own family
             mag_t, ph_t = (2.0, 1.5) if matched else (4.0, 3.0)
             meets = all(v["magnitude_pct"] <= mag_t and v["phase_deg"] <= ph_t for v in r["per_test"].values())
             cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}" for t, v in r["per_test"].items())
@@ -128,6 +197,28 @@ def main(argv=None) -> int:
         Path(args.json).write_text(json.dumps(results, indent=1))
     print("all targets met" if ok else "some target missed")
     return 0 if ok else 1
+
+
+def record_only(args) -> int:
+    """``--data DIR``: the rows' bench CSVs, and each zoned row's distance from its uniform cable."""
+    out = Path(args.data)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stub.toml").write_text(STUB)
+    damper = load_damper(out / "stub.toml")
+    results = {}
+    for row in args.rows:
+        t0 = time.perf_counter()
+        record_row(damper, row, args.seed, out / f"{row}.csv")
+        print(f"{row}: wrote {out / (row + '.csv')} ({time.perf_counter() - t0:.0f} s)")
+        if ROWS[row]["zones"]:
+            results[row] = zone_effect(damper, row)
+            print("  noise-free, zoned vs the same cable without zones (rms / largest line), magnitude % | phase deg:")
+            for t, v in results[row].items():
+                print(f"  {t:8s} {v['magnitude_rms_pct']:6.1f} / {v['magnitude_max_pct']:6.1f} | "
+                      f"{v['phase_rms_deg']:5.1f} / {v['phase_max_deg']:5.1f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from sbcal.data.bench import BENCH_COLUMNS, curves_to_frame, write_bench
 from sbcal.cli import main
 from sbcal.model.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, free_response
 from sbcal.model.reference import _beam_k, _beam_m
-from sbcal.model.cable_element import ElementCableModel
+from sbcal.model.cable_element import CableZone, ElementCableModel
 from sbcal.model.hysteresis import LognormalIwanLaw
 from sbcal.simulate.virtual_bench import (
     BENCH_ELEMENTS, DEFAULT_TESTS, EFFECTS, EXTRA_EFFECTS, BenchConfig, FixtureResonance, SlipLaw, parse_effect,
@@ -282,6 +282,11 @@ def test_parse_effect():
     assert parse_effect("strand_slip=law:iwan,chi_macro:0.02,delta_EJ:50,elements:8") == (
         "strand_slip", SlipLaw(law="iwan", params=(("chi_macro", 0.02), ("delta_EJ", 50.0)), elements=8))
     assert parse_effect("fixture_resonance=f:23,m:0.1") == ("fixture_resonance", FixtureResonance(23.0, 0.1))
+    # a zoned cable (tests/test_zoned_element.py): clamp:[FAMILY/]LENGTH[/KEY=VALUE...], mass:...
+    assert parse_effect("strand_slip=law:dahl,chi_dahl:0.01,clamp:lognormal_iwan/0.2/chi_median=0.02/EJ_min_ratio=2,"
+                        "mass:0.1/chi_ratio=2") == ("strand_slip", SlipLaw(law="dahl", params=(("chi_dahl", 0.01),), zones=(
+                            CableZone("clamp", 0.2, "lognormal_iwan", (("chi_median", 0.02), ("log_spread", 1.5)),
+                                      EJ_min_ratio=2.0), CableZone("mass", 0.1, chi_ratio=2.0))))
     for spec, match in (("fixture_mass", "NAME=VALUE"), ("wobble=1", "unknown effect"),
                         ("sensor_delay=x", "not a number"), ("fixture_mass=-1", ">= 0"),
                         ("viscous_damping=0", "> 0"), ("strand_slip=delta_EJ:50", "chi_median is required"),
@@ -318,6 +323,7 @@ def test_cli_bench_writes_the_plan(tmp_path, capsys):
     (["--effect", "wobble=1"], "unknown effect 'wobble'"),
     (["--effect", "fixture_mass=heavy"], "is not a number"),
     (["--effect", "strand_slip=chi_median:-1"], "chi_median is outside"),
+    (["--effect", "strand_slip=law:iwan5,chi_macro:0.02,clamp:dahl/0.2"], "clamp zone: the dahl law needs chi_dahl"),
     (["--set", "EX=1"], "unknown parameter"),
     (["--tests", "1-x"], "test '1-x'"),
     (["--runs", "0"], "--runs"),

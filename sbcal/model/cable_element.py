@@ -1,6 +1,12 @@
 """The element cable model (the virtual bench's): Euler-Bernoulli elements along each arm, each section's
 rigidity from the law at its own curvature, solved by Newton iterations on the curvatures
-(``docs/cable.md``, "Two models")."""
+(``docs/cable.md``, "Two models").
+
+The law may change along the arm: a :class:`sbcal.model.zones.ZonedLaw` (the fitted model's zones, its
+parameters given to :meth:`ElementCableModel.state` like every law parameter), or fixed boundary zones
+:class:`CableZone` with a law of their own, of any family (richer than the fitted model: the virtual
+bench's). Either way the mesh puts nodes at the zone boundaries and each element takes its zone's law.
+"""
 
 from __future__ import annotations
 
@@ -12,15 +18,177 @@ from ..core.errors import InputError
 from .cable import _CableBase
 from .cable_sections import _FD_LOG_STEP, _TINY, _grid
 from .damper import Damper
+from .hysteresis import law_for
+from .zones import ZONED_SUFFIX, ZonedLaw
 
 
-__all__ = ["DEFAULT_N_ELEMENTS", "ElementCableState", "ElementCableModel"]
+__all__ = ["DEFAULT_N_ELEMENTS", "MIN_ZONE_ELEMENTS", "CableZone", "ElementCableState", "ElementCableModel"]
 
 DEFAULT_N_ELEMENTS = 6
 """Elements per arm of :class:`ElementCableModel` (the convergence study of ``docs/cable.md``)."""
 
+MIN_ZONE_ELEMENTS = 2
+"""Least number of elements of each zone of a zoned cable (the total per arm is raised to this if needed)."""
+
 _MAX_LOG_STEP = 2.0  # element model: Newton step cap in ln chi (a factor e^2 per iteration)
+_UNIT_EJ, _UNIT_CHI = "N m^2", "1/m"
 # --- the element model (the virtual bench) ---------------------------------------------------------
+
+@dataclass(frozen=True)
+class CableZone:
+    """A boundary zone of each arm with a law of its own and fixed parameter values (the element model's).
+
+    Richer than :class:`sbcal.model.zones.ZonedLaw`, whose zones are the middle's family scaled: a
+    zone here may follow another family (``dahl`` or ``lognormal_iwan`` where the cable is swaged
+    into the clamp, ``iwan5`` in the free middle). Its law parameters are
+
+    - those given in :attr:`params` (fixed values; with :meth:`ElementCableModel.state`'s
+      ``zone_scale``, the N m^2 ones times its first factor, the 1/m ones times its second);
+    - when the zone's family is the middle's, every other parameter is the middle's (per parameter
+      set), ``delta_EJ`` times :attr:`delta_EJ_ratio` and every 1/m parameter times :attr:`chi_ratio`
+      (as a :class:`~sbcal.model.zones.ZonedLaw` zone);
+    - for another family, ``delta_EJ`` (if not given) is the middle's times :attr:`delta_EJ_ratio`;
+      every other parameter must be given.
+
+    The zone's linear part is ``EJ_min * EJ_min_ratio * (1 + i beta_material)`` (or the model's
+    ``linear_rigidity`` times the ratio).
+
+    Attributes
+    ----------
+    where : str
+        ``"clamp"`` (``0 <= s/L < length``, s from the clamp) or ``"mass"`` (``1 - length < s/L <= 1``).
+    length : float
+        The zone's length as a fraction of the arm, in (0, 0.5).
+    law : str or None
+        Its family (:data:`sbcal.model.hysteresis.LAWS`); None: the middle's.
+    params : tuple of (str, float)
+        Fixed parameter values of the zone's law (sorted by name once checked).
+    EJ_min_ratio, delta_EJ_ratio, chi_ratio : float
+        Ratios to the middle's values (> 0); ``delta_EJ_ratio`` only where ``delta_EJ`` is not given,
+        ``chi_ratio`` only where the zone takes 1/m parameters from the middle (its family's).
+    """
+
+    where: str
+    length: float
+    law: str | None = None
+    params: tuple = ()
+    EJ_min_ratio: float = 1.0
+    delta_EJ_ratio: float = 1.0
+    chi_ratio: float = 1.0
+
+    def __post_init__(self):
+        if self.where not in ("clamp", "mass"):
+            raise InputError(f"cable zone: where must be 'clamp' or 'mass', got {self.where!r}")
+        tag = f"{self.where} zone"
+        length = _finite(self.length, f"{tag}: length")
+        if not 0 < length < 0.5:
+            raise InputError(f"{tag}: length must be a fraction of the arm in (0, 0.5), got {self.length!r}")
+        for name in ("EJ_min_ratio", "delta_EJ_ratio", "chi_ratio"):
+            v = _finite(getattr(self, name), f"{tag}: {name}")
+            if v <= 0:
+                raise InputError(f"{tag}: {name} must be > 0, got {v!r}")
+            object.__setattr__(self, name, v)
+        if self.law is not None:
+            if str(self.law).endswith(ZONED_SUFFIX):
+                raise InputError(f"{tag}: law {self.law!r} is zoned itself; give a family (e.g. {self.law[:-len(ZONED_SUFFIX)]})")
+            try:
+                law_for(self.law)
+            except InputError as e:
+                raise InputError(f"{tag}: {e}") from None
+        try:
+            params = {str(k): v for k, v in dict(self.params).items()}
+        except (TypeError, ValueError):
+            raise InputError(f"{tag}: params must be (name, value) pairs, got {self.params!r}") from None
+        for k, v in params.items():
+            params[k] = _finite(v, f"{tag}: {k}")
+        if "delta_EJ" in params and self.delta_EJ_ratio != 1.0:
+            raise InputError(f"{tag}: give delta_EJ or delta_EJ_ratio, not both")
+        object.__setattr__(self, "length", length)
+        object.__setattr__(self, "params", tuple(sorted(params.items())))
+
+
+def _finite(value, what: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected a number, got {value!r}") from None
+    if not np.isfinite(v):
+        raise InputError(f"{what}: expected a finite number, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class _ZoneSpec:
+    """A :class:`CableZone` checked against the middle's law: its law and where its parameters come from."""
+
+    where: str
+    length: float
+    law: object  # HysteresisLaw
+    fixed: tuple  # (name, value, unit)
+    derived: tuple  # (name, unit): taken from the middle, times the ratio of its unit
+    EJ_min_ratio: float
+    delta_EJ_ratio: float
+    chi_ratio: float
+
+
+def _zone_spec(zone: CableZone, middle) -> _ZoneSpec:
+    tag = f"{zone.where} zone"
+    law = middle if zone.law is None or zone.law == middle.name else law_for(zone.law)
+    units = {p.name: p.unit for p in law.parameters}
+    given = dict(zone.params)
+    unknown = sorted(set(given) - set(units))
+    if unknown:
+        raise InputError(f"{tag}: {unknown[0]} is not a parameter of the {law.name} law; known: {', '.join(units)}")
+    for k, v in given.items():
+        if not law._domain(k, np.asarray(v)):
+            raise InputError(f"{tag}: {k} is outside the {law.name} law's domain, got {v!r}")
+    same = law.name == middle.name
+    if same:
+        derived = tuple((k, units[k]) for k in law.parameter_names if k not in given)
+    else:
+        missing = [k for k in law.parameter_names if k not in given and k != "delta_EJ"]
+        if missing:
+            raise InputError(f"{tag}: the {law.name} law needs {missing[0]} (a zone of another family than the "
+                             f"middle's ({middle.name}) takes only delta_EJ from it)")
+        derived = (("delta_EJ", _UNIT_EJ),) if "delta_EJ" not in given else ()
+    if zone.chi_ratio != 1.0 and not any(u == _UNIT_CHI for _, u in derived):
+        raise InputError(f"{tag}: chi_ratio scales the middle's curvatures, which a {law.name} zone "
+                         + ("does not take (another family)" if not same else "does not take (all given)"))
+    return _ZoneSpec(where=zone.where, length=zone.length, law=law,
+                     fixed=tuple((k, v, units[k]) for k, v in sorted(given.items())), derived=derived,
+                     EJ_min_ratio=zone.EJ_min_ratio, delta_EJ_ratio=zone.delta_EJ_ratio, chi_ratio=zone.chi_ratio)
+
+
+def _allocate(lengths, n: int) -> np.ndarray:
+    """Elements per zone: in proportion to its length, at least :data:`MIN_ZONE_ELEMENTS`, ``n`` in
+    all where that allows (largest remainders first)."""
+    target = n * np.asarray(lengths, dtype=float)
+    counts = np.maximum(MIN_ZONE_ELEMENTS, np.floor(target + 1e-9).astype(int))
+    while counts.sum() < n:
+        counts[np.argmax(target - counts)] += 1
+    while counts.sum() > n:
+        over = np.where(counts > MIN_ZONE_ELEMENTS, counts - target, -np.inf)
+        if not np.isfinite(over).any():
+            break
+        counts[np.argmax(over)] -= 1
+    return counts
+
+
+def _zoned_mesh(clamp: float, mass: float, n: int):
+    """Nodes (fractions of the arm from the clamp) with the zone boundaries among them, and each zone's
+    elements: ``{"clamp" | "middle" | "mass": slice}`` (a zone of length 0 left out)."""
+    spans = [(name, a, b) for name, a, b in (("clamp", 0.0, clamp), ("middle", clamp, 1.0 - mass), ("mass", 1.0 - mass, 1.0))
+             if b - a > 0]
+    counts = _allocate([b - a for _, a, b in spans], n)
+    nodes, slices, start = [np.zeros(1)], {}, 0
+    for (name, a, b), m in zip(spans, counts):
+        nodes.append(a + (b - a) * np.arange(1, m + 1) / m)
+        slices[name] = slice(start, start + m)
+        start += m
+    mesh = np.concatenate(nodes)
+    mesh[-1] = 1.0
+    return mesh, slices
+
 
 @dataclass(frozen=True, eq=False)
 class ElementCableState:
@@ -42,7 +210,9 @@ class ElementCableState:
     iterations : int
         Newton iterations, summed over the passes.
     mesh : ndarray, shape (N + 1,)
-        Node positions along each arm from the clamp, as fractions of the arm's length.
+        Node positions along each arm from the clamp, as fractions of the arm's length (a zoned
+        cable's with its zone boundaries among them; N may then exceed ``n_elements``, at least
+        :data:`MIN_ZONE_ELEMENTS` per zone).
     """
 
     f_uu: np.ndarray
@@ -95,13 +265,24 @@ class _Batch:
     t0: np.ndarray  # clamp rotation along the arm [rad], (B,)
     linear: np.ndarray  # EJ_min (1 + i beta_material), (B,)
     law_params: dict  # each (B, 1)
+    zones: tuple = None  # zoned cable: per zone (elements slice, law, params each (B, 1), EJ_min ratio (B,) or float)
+
+    @property
+    def n(self) -> int:
+        """Elements per arm."""
+        return self.h.shape[0]
 
     def take(self, idx):
         """The constants of the batch entries ``idx``."""
+        zones = self.zones
+        if zones is not None:
+            zones = tuple((sl, law, {k: v[idx] for k, v in lp.items()}, r[idx] if np.ndim(r) else r)
+                          for sl, law, lp, r in zones)
         return _Batch(k12=self.k12[:, idx], k6=self.k6[:, idx], k4=self.k4[:, idx], k2=self.k2[:, idx],
                       inv_h=self.inv_h[:, idx], h=self.h[:, idx], wm=tuple(w[:, idx] for w in self.wm),
                       tip=tuple(t[idx] for t in self.tip), x0=self.x0[idx], t0=self.t0[idx],
-                      linear=self.linear[idx], law_params={k: v[idx] for k, v in self.law_params.items()})
+                      linear=self.linear[idx], law_params={k: v[idx] for k, v in self.law_params.items()},
+                      zones=zones)
 
 
 class _ElementArms:
@@ -153,6 +334,34 @@ class _ElementArms:
             w, t = _mat_vec(self.g[k], *x[-1])
             x.append((-w, -t))
         return x
+
+    def deformation(self):
+        """Node motions less the clamp's rigid motion (``w = x0 + t0 s``, ``t = t0``), nodes 0 .. N
+        (node 0 zero): list of (w, t). Solved for the inertial load of the rigid motion (which the
+        stiffness does not feel), so the curvatures need not cancel the clamp's motion between
+        neighbouring nodes: their rounding is relative to the deformation, not to ``x0``, whose
+        cancellation over short elements (~eps x0 / h^2) is the rounding floor of :meth:`response`'s
+        (~1e-9 in ln chi at 4 Hz with 12 elements on damper1). Used by zoned cables (shorter elements)."""
+        c, n = self.c, self.n
+        s = np.concatenate([np.zeros((1, c.h.shape[1])), np.cumsum(c.h, axis=0)])
+        t = c.t0
+        w = c.x0 + t * s  # (N + 1, B)
+        wm156, wm22, wm4, wm54, wm13, wm3 = c.wm
+        r = []
+        for k in range(1, n + 1):
+            e = k - 1  # the element whose mass-side node is k: M_ba X_a + M_bb X_b
+            rw = wm54[e] * w[k - 1] + wm13[e] * t + wm156[e] * w[k] - wm22[e] * t
+            rt = -wm13[e] * w[k - 1] - wm3[e] * t - wm22[e] * w[k] + wm4[e] * t
+            if k < n:  # the element whose clamp-side node is k: M_aa X_a + M_ab X_b
+                e = k
+                rw = rw + wm156[e] * w[k] + wm22[e] * t + wm54[e] * w[k + 1] - wm13[e] * t
+                rt = rt + wm22[e] * w[k] + wm4[e] * t + wm13[e] * w[k + 1] - wm3[e] * t
+            else:  # the end mass
+                rw = rw + c.tip[0] * w[k] + c.tip[1] * t
+                rt = rt + c.tip[1] * w[k] + c.tip[2] * t
+            r.append((rw[:, None].astype(complex), rt[:, None].astype(complex)))
+        zero = np.zeros(c.x0.shape, dtype=complex)
+        return [(zero, zero)] + [(yw[:, 0], yt[:, 0]) for yw, yt in self.solve(r)]
 
     def clamp_force(self):
         """Vertical force of the arm on the clamp [N] for the prescribed motion."""
@@ -213,23 +422,36 @@ def _solve_small(a, b):
 class ElementCableModel(_CableBase):
     """The distributed strand-slip cable: ``f_uu`` and its steady state for parameter sets.
 
-    Parameters (keyword arguments of :meth:`state`): those of :class:`sbcal.model.cable.CableModel`.
+    Parameters (keyword arguments of :meth:`state`): those of :class:`sbcal.model.cable.CableModel`
+    (with a :class:`sbcal.model.zones.ZonedLaw`, its zones' too: ``clamp_zone`` and ``mass_zone`` a
+    scalar or equal across the sets, since they place the mesh's nodes).
+
+    A zoned cable (a ``ZonedLaw``, or :attr:`zones`) has nodes at its zone boundaries: each zone gets
+    elements in proportion to its length, at least :data:`MIN_ZONE_ELEMENTS`, ``n_elements`` in all
+    (more when ``n_elements`` is below ``MIN_ZONE_ELEMENTS`` per zone); each element's rigidity is its
+    zone's ``EJ_min * EJ_min_ratio * (1 + i beta_material) + EJ_slip*(chi_e)`` of its zone's law, and
+    the curvatures come from the arm's deformation (:meth:`_ElementArms.deformation`: its shorter
+    elements would put the rounding of node motions dominated by the clamp's at the tolerance).
 
     Attributes
     ----------
     law : HysteresisLaw or None
-        The slip part's law; None is the linear cable ``EJ_min (1 + i beta_material)``.
+        The slip part's law (with :attr:`zones`: the middle's); None is the linear cable
+        ``EJ_min (1 + i beta_material)``.
     n_elements : int
-        Hermite elements per arm.
+        Hermite elements per arm (a zoned cable's in all its zones).
     grading : float
         Length of the element at the end mass over that at the clamp (1: uniform; > 1: finer at
-        the clamp, where the curvature peaks), geometric progression.
+        the clamp, where the curvature peaks), geometric progression. Uniform cables only.
     max_iter : int
         Newton iteration budget per pass (a fixed budget: the model is a deterministic function).
     tol : float
         Convergence tolerance on ``max |ln T(chi) - ln chi|`` per arm.
     fold_tol : float
         Two solutions of one line are distinct when their ``ln chi`` differ by more than this.
+    zones : tuple of CableZone
+        Fixed boundary zones with laws of their own (at most one at the clamp and one at the mass);
+        :attr:`law` is the middle's, not a ``ZonedLaw``.
     """
 
     n_elements: int = DEFAULT_N_ELEMENTS
@@ -237,22 +459,84 @@ class ElementCableModel(_CableBase):
     max_iter: int = 20
     tol: float = 1e-9
     fold_tol: float = 1e-4
+    zones: tuple = ()
     _mesh: np.ndarray = field(init=False, repr=False, compare=False)
+    _zone_specs: tuple = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if int(self.n_elements) != self.n_elements or self.n_elements < 1:
             raise InputError(f"n_elements: expected an integer >= 1, got {self.n_elements!r}")
         if not (np.isfinite(self.grading) and self.grading > 0):
             raise InputError(f"grading: expected a finite value > 0, got {self.grading!r}")
+        zones = tuple(self.zones or ())
+        if not all(isinstance(z, CableZone) for z in zones):
+            raise InputError("zones: expected CableZone values")
+        if zones and self.law is None:
+            raise InputError("zones: the cable needs a law in its middle (law is None)")
+        if zones and isinstance(self.law, ZonedLaw):
+            raise InputError(f"zones: the law {self.law.name} has its own zones; give its family "
+                             f"({self.law.base.name}) with zones, or the zoned law without")
+        where = [z.where for z in zones]
+        if len(set(where)) != len(where):
+            raise InputError(f"zones: one zone per end, got {', '.join(where)}")
+        if (zones or isinstance(self.law, ZonedLaw)) and self.grading != 1.0:
+            raise InputError("grading: a zoned cable's elements are uniform within each zone (grading 1)")
+        object.__setattr__(self, "zones", zones)
+        object.__setattr__(self, "_zone_specs", tuple(_zone_spec(z, self.law) for z in zones))
         n = int(self.n_elements)
-        ratio = self.grading ** (1.0 / (n - 1)) if n > 1 else 1.0
-        lengths = ratio ** np.arange(n)
-        object.__setattr__(self, "_mesh", np.concatenate([[0.0], np.cumsum(lengths) / lengths.sum()]))
+        if zones:
+            lengths = {z.where: z.length for z in zones}
+            mesh, _ = _zoned_mesh(lengths.get("clamp", 0.0), lengths.get("mass", 0.0), n)
+        else:
+            ratio = self.grading ** (1.0 / (n - 1)) if n > 1 else 1.0
+            lengths = ratio ** np.arange(n)
+            mesh = np.concatenate([[0.0], np.cumsum(lengths) / lengths.sum()])
+        object.__setattr__(self, "_mesh", mesh)
+
+    @property
+    def zoned(self) -> bool:
+        """The law changes along the arm (a :class:`sbcal.model.zones.ZonedLaw` or :attr:`zones`)."""
+        return bool(self.zones) or isinstance(self.law, ZonedLaw)
+
+    def _zone_laws(self, p: dict, zone_scale):
+        """A zoned cable's zones: ``[(zone, law, params, EJ_min ratio)]`` (zone ``"middle"``, ``"clamp"``
+        or ``"mass"``; values of shape (n_sets or 1,) or scalars); None for a uniform cable."""
+        if isinstance(self.law, ZonedLaw):
+            return [(name, self.law.base, lp, ratio) for name, _, lp, ratio in self.law.zones(p)]
+        if not self.zones:
+            return None
+        ej, chi = (1.0, 1.0) if zone_scale is None else zone_scale
+        factor = {_UNIT_EJ: ej, _UNIT_CHI: chi}
+        out = [("middle", self.law, {k: p[k] for k in self.law.parameter_names}, 1.0)]
+        for z in self._zone_specs:
+            lp = {k: v * factor.get(u, 1.0) for k, v, u in z.fixed}
+            for k, u in z.derived:
+                lp[k] = p[k] * (z.delta_EJ_ratio if u == _UNIT_EJ else z.chi_ratio if u == _UNIT_CHI else 1.0)
+            out.append((z.where, z.law, lp, z.EJ_min_ratio))
+        return out
+
+    def _zone_mesh(self, p: dict):
+        """A zoned cable's nodes and each zone's elements (:func:`_zoned_mesh`)."""
+        if isinstance(self.law, ZonedLaw):
+            return _zoned_mesh(float(p["clamp_zone"][0]), float(p["mass_zone"][0]), int(self.n_elements))
+        lengths = {z.where: z.length for z in self.zones}
+        return _zoned_mesh(lengths.get("clamp", 0.0), lengths.get("mass", 0.0), int(self.n_elements))
+
+    def _check_zone_lengths(self, p: dict):
+        """A ZonedLaw's ``clamp_zone`` and ``mass_zone``: one value for all sets (they place the nodes)."""
+        if not isinstance(self.law, ZonedLaw):
+            return
+        for name in ("clamp_zone", "mass_zone"):
+            v = p[name]
+            if v.size > 1 and not np.all(v == v[0]):
+                raise InputError(f"parameter {name!r}: the element model's mesh needs one value for every "
+                                 f"parameter set (a scalar), got values from {np.nanmin(v):g} to {np.nanmax(v):g}")
 
     # --- set-up -------------------------------------------------------------------------------
 
-    def _batch(self, p: dict, n_sets: int, omega, x0) -> _Batch:
+    def _batch(self, p: dict, n_sets: int, omega, x0, zoned=None) -> _Batch:
         nf = omega.size
+        mesh = self._mesh if zoned is None else zoned[0]
 
         def full(per_set_arm):
             """(n_sets or 1, 2) -> (S, F, 2) broadcast, flattened to (B,)."""
@@ -263,7 +547,7 @@ class ElementCableModel(_CableBase):
             return np.stack([a1, a2], axis=-1)  # (n_sets or 1, 2)
 
         length = arms("L1", "L2")
-        frac = np.diff(self._mesh)
+        frac = np.diff(mesh)
         h = np.stack([full(length * f) for f in frac])  # (N, B)
         mu = full(arms(p["mu"], p["mu"]))
         w2 = np.broadcast_to((omega**2)[None, :, None], (n_sets, nf, 2)).reshape(-1)
@@ -276,12 +560,20 @@ class ElementCableModel(_CableBase):
         x0b = np.broadcast_to(x0[None, :, None], (n_sets, nf, 2)).reshape(-1)
         r = full(arms(-p["rocking_rad_per_m"], p["rocking_rad_per_m"]))
         linear = full(arms(p["EJ_min"] * (1 + 1j * p["beta_material"]), p["EJ_min"] * (1 + 1j * p["beta_material"])))
-        law_params = {}
-        if self.law is not None:
+        law_params, zones = {}, None
+        if zoned is not None:
+            def per_set(v):
+                v = np.atleast_1d(np.asarray(v, dtype=float))
+                return full(arms(v, v))
+
+            zones = tuple((sl, law, {k: per_set(v)[:, None] for k, v in lp.items()},
+                           per_set(ratio) if np.ndim(ratio) else float(ratio))
+                          for sl, law, lp, ratio in zoned[1])
+        elif self.law is not None:
             law_params = {k: full(arms(p[k], p[k]))[:, None] for k in self.law.parameter_names}
         inv_h = 1.0 / h
         return _Batch(k12=12 * inv_h**3, k6=6 * inv_h**2, k4=4 * inv_h, k2=2 * inv_h, inv_h=inv_h, h=h, wm=wm,
-                      tip=tip, x0=x0b, t0=r * x0b, linear=linear, law_params=law_params)
+                      tip=tip, x0=x0b, t0=r * x0b, linear=linear, law_params=law_params, zones=zones)
 
     # --- the fixed point ----------------------------------------------------------------------
 
@@ -289,6 +581,11 @@ class ElementCableModel(_CableBase):
         """Element rigidities (N, B) at curvature amplitudes z (N, B)."""
         if self.law is None:
             return np.broadcast_to(c.linear, z.shape).astype(complex)
+        if c.zones is not None:
+            sigma = np.empty(z.shape, dtype=complex)
+            for sl, law, lp, ratio in c.zones:
+                sigma[sl] = c.linear * ratio + law.slip_rigidity(z[sl].T, **lp).T
+            return sigma
         slip = self.law.slip_rigidity(z.T, **c.law_params).T
         return c.linear + slip
 
@@ -296,12 +593,12 @@ class ElementCableModel(_CableBase):
         """Map T(z) (N, B), the arm force (B,), and optionally dG/du of G(u) = ln T(e^u) - u (B, N, N)."""
         sigma = self._sigma(c, z)
         arms = _ElementArms(c, sigma)
-        x = arms.response()
-        ends = [_curvature_ends(c, x, e) for e in range(self.n_elements)]
+        x = arms.response() if c.zones is None else arms.deformation()  # the same curvatures
+        ends = [_curvature_ends(c, x, e) for e in range(c.n)]
         t = np.stack([_rms(c0, c1) for c0, c1 in ends])
         if not jacobian:
             return t, arms.clamp_force(), sigma, None
-        n, b = self.n_elements, z.shape[1]
+        n, b = c.n, z.shape[1]
         # law slope d sigma / d ln z, forward difference (the laws are closed forms or splines)
         if self.law is None:
             slope = np.zeros_like(sigma)
@@ -367,7 +664,7 @@ class ElementCableModel(_CableBase):
     # --- public -------------------------------------------------------------------------------
 
     def state(self, damper: Damper, freq_hz, amplitude_mm_pp, *, segments=None, linear_rigidity=None,
-              **params) -> ElementCableState:
+              zone_scale=None, **params) -> ElementCableState:
         """Steady state of the cable at every line, following a stepped-sine sweep up each test.
 
         Parameters
@@ -381,8 +678,14 @@ class ElementCableModel(_CableBase):
         linear_rigidity : array_like of complex, shape (n_sets or 1, n_freq or 1, 2), optional
             ``EJ_min (1 + i beta_material)`` per set, line and arm [N m^2], replacing ``EJ_min`` and
             ``beta_material`` (the virtual bench's asymmetric, viscous or frequency-dependent cable).
+            A zone's ``EJ_min_ratio`` multiplies it.
+        zone_scale : (float or array_like, float or array_like), optional
+            With :attr:`zones`: factors ``(ej, chi)``, scalars or shape (n_sets,), on the zones' fixed
+            parameter values, ``ej`` on those in N m^2, ``chi`` on those in 1/m (the virtual bench's
+            re-clamping scatter; the values a zone takes from the middle follow the middle's).
         **params : float or array_like, shape (n_sets,)
-            See :class:`sbcal.model.cable.CableModel`.
+            See :class:`sbcal.model.cable.CableModel` (and :class:`sbcal.model.zones.ZonedLaw`: its
+            ``clamp_zone`` and ``mass_zone`` one value for all sets).
 
         Returns
         -------
@@ -391,6 +694,13 @@ class ElementCableModel(_CableBase):
         if linear_rigidity is not None:
             params = dict(params, EJ_min=1.0, beta_material=0.0)  # placeholders, replaced below
         p, n_sets, in_law = self._parameters(damper, params)
+        self._check_zone_lengths(p)
+        if zone_scale is not None:
+            zone_scale, n_sets = self._zone_scale(zone_scale, n_sets)
+        zones = self._zone_laws(p, zone_scale)
+        if zones is not None:
+            for _, law, lp, _ in zones:
+                in_law = in_law & law.valid(**lp)
         valid = np.broadcast_to((p["EJ_min"] > 0) & (p["beta_material"] >= 0) & in_law, (n_sets,))
         if linear_rigidity is not None:
             lin = np.asarray(linear_rigidity, dtype=complex)
@@ -399,15 +709,21 @@ class ElementCableModel(_CableBase):
             n_sets = max(n_sets, lin.shape[0])
         if not valid.all():
             if linear_rigidity is not None:
-                raise InputError("linear_rigidity: the law's parameters are outside its domain")
-            return self._with_invalid(damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid)
+                raise InputError("linear_rigidity: the law's parameters are outside its domain"
+                                 + (" (in some zone)" if zones is not None else ""))
+            return self._with_invalid(damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid, zone_scale)
         f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments)
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
-        c = self._batch(p, n_sets, omega, x0)
+        mesh = self._mesh
+        if zones is None:
+            c = self._batch(p, n_sets, omega, x0)
+        else:
+            mesh, slices = self._zone_mesh(p)
+            c = self._batch(p, n_sets, omega, x0, (mesh, [(slices[z], law, lp, r) for z, law, lp, r in zones]))
         if linear_rigidity is not None:
             c = replace(c, linear=np.broadcast_to(lin, (n_sets, f.size, 2)).reshape(-1).copy())
-        n, nf = int(self.n_elements), f.size
+        n, nf = c.n, f.size
 
         # 1. all lines at once, from the stuck cable's linear response
         # predictor: the stuck cable's curvature overestimates the slipping cable's, the response
@@ -430,29 +746,53 @@ class ElementCableModel(_CableBase):
         res = per_line(resid).max(axis=-1)
         return ElementCableState(f_uu=np.broadcast_to(f_uu, (n_sets, nf)).copy(), curvature=curv, rigidity=rig,
                           converged=res < self.tol, fold=fold, residual=res, iterations=int(iterations),
-                          mesh=self._mesh.copy())
+                          mesh=mesh.copy())
 
-    def _with_invalid(self, damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid):
+    def _zone_scale(self, zone_scale, n_sets: int):
+        """``zone_scale`` as two 1-D arrays (length n_sets or 1), and n_sets."""
+        if not self.zones:
+            raise InputError("zone_scale: the cable has no fixed zones (ElementCableModel.zones)")
+        try:
+            ej, chi = (np.asarray(v, dtype=float).reshape(-1) for v in zone_scale)
+        except (TypeError, ValueError):
+            raise InputError("zone_scale: expected a pair (ej, chi) of scalars or arrays of shape (n_sets,)") from None
+        for name, v in (("ej", ej), ("chi", chi)):
+            if v.size not in (1, n_sets) and n_sets != 1:
+                raise InputError(f"zone_scale: {name} has {v.size} values for {n_sets} parameter sets")
+            if not np.all(np.isfinite(v) & (v > 0)):
+                raise InputError(f"zone_scale: {name} must be finite and > 0")
+            n_sets = max(n_sets, v.size)
+        if ej.size not in (1, n_sets) or chi.size not in (1, n_sets):
+            raise InputError(f"zone_scale: ej and chi have {ej.size} and {chi.size} values")
+        return (ej, chi), n_sets
+
+    def _with_invalid(self, damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid, zone_scale=None):
         """Solve the valid sets only; the others get NaN (outside the law's domain)."""
         keep, sub = self._valid_subset(p, n_sets, valid)
         nf = np.atleast_1d(np.asarray(freq_hz)).size
-        shape = (n_sets, nf, 2, int(self.n_elements))
+        mesh = self._mesh
+        if keep.size and isinstance(self.law, ZonedLaw):
+            mesh = self._zone_mesh(sub)[0]
+        shape = (n_sets, nf, 2, mesh.size - 1)
         out = dict(f_uu=np.full((n_sets, nf), np.nan + 0j), curvature=np.full(shape, np.nan),
                    rigidity=np.full(shape, np.nan + 0j), converged=np.zeros((n_sets, nf), dtype=bool),
                    fold=np.zeros((n_sets, nf), dtype=bool), residual=np.full((n_sets, nf), np.inf))
         iterations = 0
         if keep.size:
+            if zone_scale is not None:
+                zone_scale = tuple(v[keep] if v.size == n_sets and n_sets > 1 else v for v in zone_scale)
+                sub = dict(sub, zone_scale=zone_scale)
             iterations = self._scatter(out, keep, self.state(damper, freq_hz, amplitude_mm_pp, segments=segments, **sub))
-        return ElementCableState(**out, iterations=iterations, mesh=self._mesh.copy())
+        return ElementCableState(**out, iterations=iterations, mesh=mesh.copy())
 
     def _linear_curvatures(self, c, sigma):
         arms = _ElementArms(c, sigma)
-        x = arms.response()
-        return np.stack([_rms(*_curvature_ends(c, x, e)) for e in range(self.n_elements)])
+        x = arms.response() if c.zones is None else arms.deformation()
+        return np.stack([_rms(*_curvature_ends(c, x, e)) for e in range(c.n)])
 
     def _continuation(self, c, z, force, sigma, resid, seg, n_sets, nf):
         """Check every line against a restart from its predecessor; re-solve the folds in sweep order."""
-        n = int(self.n_elements)
+        n = c.n
         shape = (n, n_sets, nf, 2)
         zl = z.reshape(shape)
         first = np.concatenate([[True], seg[1:] != seg[:-1]])

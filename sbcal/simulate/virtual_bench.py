@@ -44,10 +44,11 @@ from ..core._io import finite_number
 from ..core.errors import InputError
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
 from ..data.labels import parse_label
-from ..model.cable_element import ElementCableModel
+from ..model.cable_element import CableZone, ElementCableModel
 from ..model.damper import Damper
 from ..model.fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
 from ..model.hysteresis import law_for
+from ..model.zones import ZONE_PARAMETERS, ZONED_SUFFIX
 
 
 __all__ = [
@@ -56,6 +57,7 @@ __all__ = [
     "DEFAULT_TESTS",
     "BENCH_ELEMENTS",
     "SlipLaw",
+    "CableZone",
     "FixtureResonance",
     "BenchConfig",
     "parse_effect",
@@ -93,8 +95,14 @@ _LAW_DEFAULTS = {"dahl": {}, "iwan": {"micro_exponent": -0.5, "macro_ratio": 0.0
                  "lognormal_iwan": {"log_spread": 1.5}, "bouc_wen": {"sharpness": 1.0},
                  "iwan5": {"chi_micro": 1e-6, "density_exponent": -0.5, "macro_ratio": 0.0},
                  "iwan_tail": {"chi_micro": 1e-6, "density_exponent": -0.5, "tail_exponent": -1.5}}
+_ZONE_RATIOS = ("EJ_min_ratio", "delta_EJ_ratio", "chi_ratio")
 BENCH_ELEMENTS = 12
 """Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.model.cable_element.DEFAULT_N_ELEMENTS`)."""
+
+
+def _family(law: str) -> str:
+    """A zoned law's family (``iwan5_zoned`` -> ``iwan5``), else the law."""
+    return law[:-len(ZONED_SUFFIX)] if law.endswith(ZONED_SUFFIX) else law
 
 
 @dataclass(frozen=True)
@@ -106,11 +114,18 @@ class SlipLaw:
     parameter and ``beta_material`` its ``beta``. Each run follows the branch a stepped-sine sweep up
     the grid reaches (continuation from line to line).
 
+    A zoned cable (``docs/virtual_bench.md``, "Zoned cables"): ``zones``, boundary zones at the clamp
+    and/or the mass with laws of their own (:class:`sbcal.model.cable_element.CableZone`, any family,
+    fixed values), or ``law`` a fitted model's zoned family (``"iwan5_zoned"``: the family's scaled
+    versions in zones of :class:`sbcal.model.zones.ZonedLaw`, its parameters in ``params``).
+
     Attributes
     ----------
     law : str
         ``"lognormal_iwan"`` (the bench's own law, fitted by no family), a fitted family
-        (``"bouc_wen"``, ``"iwan5"``, ``"iwan_tail"``) or a special case (``"dahl"``, ``"iwan"``).
+        (``"bouc_wen"``, ``"iwan5"``, ``"iwan_tail"``), a special case (``"dahl"``, ``"iwan"``), or
+        any of these with ``_zoned`` (its zone parameters in ``params``: ``clamp_zone`` and
+        ``mass_zone`` required, the ratios default 1).
     params : tuple of (str, float)
         The law's parameters (:attr:`sbcal.model.hysteresis.HysteresisLaw.parameters`); ``delta_EJ``
         defaults to ``ej_static - EJ`` (the stuck cable is the damper's static rigidity), and
@@ -119,38 +134,72 @@ class SlipLaw:
         (iwan5; iwan_tail the same with ``tail_exponent = -1.5`` in place of ``macro_ratio``). The law's curvature scale
         (``chi_dahl``, ``chi_macro``, ``chi_median``, ``chi_slip``, ``chi_tail``) is required.
     elements : int
-        Hermite elements per arm (default :data:`BENCH_ELEMENTS`).
+        Hermite elements per arm (default :data:`BENCH_ELEMENTS`; a zoned cable's in all its zones, at
+        least 2 per zone).
+    zones : tuple of CableZone
+        Boundary zones with laws of their own (at most one per end); ``law`` is the middle's. A zone
+        of another family than the middle's gets that family's defaults above and needs its curvature
+        scale; its ``delta_EJ`` defaults to the middle's times its ``delta_EJ_ratio``.
     """
 
     law: str = "lognormal_iwan"
     params: tuple = ()
     elements: int = BENCH_ELEMENTS
+    zones: tuple = ()
 
     def __post_init__(self):
-        if self.law not in _LAW_SCALE:
-            raise InputError(f"strand_slip: unknown law {self.law!r}; known: {', '.join(_LAW_SCALE)}")
-        params = dict(_LAW_DEFAULTS[self.law], **dict(self.params))
+        family = _family(str(self.law))
+        if family not in _LAW_SCALE:
+            raise InputError(f"strand_slip: unknown law {self.law!r}; known: {', '.join(_LAW_SCALE)} "
+                             f"(each also with {ZONED_SUFFIX})")
+        zoned = family != self.law
+        defaults = dict(_LAW_DEFAULTS[family])
+        if zoned:
+            defaults.update({p.name: 1.0 for p in ZONE_PARAMETERS if p.name.endswith("_ratio")})
+        params = dict(defaults, **dict(self.params))
         model = law_for(self.law)
         unknown = sorted(set(params) - set(model.parameter_names))
         if unknown:
             raise InputError(f"strand_slip: {unknown[0]} is not a parameter of the {self.law} law; "
                              f"known: {', '.join(model.parameter_names)}")
-        scale = _LAW_SCALE[self.law]
-        if scale not in params:
-            raise InputError(f"strand_slip: {scale} is required")
+        required = [_LAW_SCALE[family]] + (["clamp_zone", "mass_zone"] if zoned else [])
+        for name in required:
+            if name not in params:
+                raise InputError(f"strand_slip: {name} is required")
         for name, value in params.items():
             v = np.asarray(value, dtype=float)
             if not (np.isfinite(v) and model._domain(name, v)):
                 raise InputError(f"strand_slip: {name} is outside the {self.law} law's domain, got {value!r}")
         if int(self.elements) != self.elements or self.elements < 1:
             raise InputError(f"strand_slip: elements must be an integer >= 1, got {self.elements!r}")
+        zones = tuple(self.zones or ())
+        if zones and zoned:
+            raise InputError(f"strand_slip: the {self.law} law has its zones in its parameters; "
+                             f"give zones with its family ({family})")
+        zones = tuple(self._zone_defaults(z) for z in zones)
         object.__setattr__(self, "params", tuple(sorted(params.items())))
         object.__setattr__(self, "elements", int(self.elements))
+        object.__setattr__(self, "zones", zones)
+        if zones:
+            try:
+                ElementCableModel(model, n_elements=self.elements, zones=zones)  # checks the zones against the middle
+            except InputError as e:
+                raise InputError(f"strand_slip: {e}") from None
+
+    def _zone_defaults(self, zone) -> CableZone:
+        if not isinstance(zone, CableZone):
+            raise InputError(f"strand_slip: zones must be CableZone values, got {zone!r}")
+        if zone.law is None or zone.law == self.law:
+            return zone
+        if zone.law not in _LAW_SCALE:
+            raise InputError(f"strand_slip: {zone.where} zone: unknown law {zone.law!r}; known: {', '.join(_LAW_SCALE)}")
+        params = dict(_LAW_DEFAULTS[zone.law], **dict(zone.params))
+        return replace(zone, params=tuple(params.items()))
 
     @property
     def scale_name(self) -> str:
         """The law's curvature scale parameter (scaled by the re-clamping scatter ``chi0_scatter``)."""
-        return _LAW_SCALE[self.law]
+        return _LAW_SCALE[_family(self.law)]
 
     def law_params(self, ej_min, ej_static: float) -> dict:
         """The law's parameters for given ``EJ_min``, with ``delta_EJ`` defaulting to ``ej_static - EJ_min``."""
@@ -205,7 +254,11 @@ def parse_effect(spec: str):
     ``strand_slip=law:iwan,chi_macro:0.02,micro_exponent:-0.4,delta_EJ:50,elements:8`` (``law`` one
     of ``lognormal_iwan`` (default), ``dahl``, ``iwan``; the other keys the law's parameters),
     ``fixture_resonance=f:23,m:0.05,eta:0.03``; they return a :class:`SlipLaw` /
-    :class:`FixtureResonance`.
+    :class:`FixtureResonance`. A zoned cable's boundary zones are the keys ``clamp`` and ``mass``,
+    each ``[FAMILY/]LENGTH[/KEY=VALUE...]`` (:class:`sbcal.model.cable_element.CableZone`: the family
+    defaults to the middle's, LENGTH is a fraction of the arm, KEY a parameter of the zone's law or
+    ``EJ_min_ratio``, ``delta_EJ_ratio``, ``chi_ratio``):
+    ``strand_slip=law:iwan5,chi_macro:0.01,clamp:dahl/0.2/chi_dahl=0.03/delta_EJ_ratio=2/EJ_min_ratio=1.5,mass:0.1/chi_ratio=2``.
 
     Raises
     ------
@@ -248,27 +301,55 @@ def parse_effect(spec: str):
 
 
 def _parse_slip(spec: str, value: str) -> SlipLaw:
-    """``CHI`` (the default law's curvature scale) or ``law:NAME,elements:N,PARAM:VALUE,...``."""
+    """``CHI`` (the default law's curvature scale) or ``law:NAME,elements:N,PARAM:VALUE,...`` with
+    optional zones ``clamp:[FAMILY/]LENGTH[/KEY=VALUE...]`` and ``mass:...``."""
     try:
         if ":" not in value:
             return SlipLaw(params=((_LAW_SCALE[SlipLaw.law], finite_number(value, f"effect {spec!r}")),))
-        law, elements, params = SlipLaw.law, BENCH_ELEMENTS, {}
+        law, elements, params, zones = SlipLaw.law, BENCH_ELEMENTS, {}, []
         for item in value.split(","):
             key, colon, text = (t.strip() for t in item.partition(":"))
             if not colon or not key:
-                raise InputError(f"effect {spec!r}: expected key:value pairs (law:NAME, elements:N, law parameters)")
+                raise InputError(f"effect {spec!r}: expected key:value pairs (law:NAME, elements:N, law parameters, "
+                                 "clamp:ZONE, mass:ZONE)")
             if key == "law":
                 law = text
             elif key == "elements":
                 elements = finite_number(text, f"effect {spec!r}")
+            elif key in ("clamp", "mass"):
+                zones.append(_parse_zone(spec, key, text))
             else:
                 params[key] = finite_number(text, f"effect {spec!r}")
-        return SlipLaw(law=law, params=tuple(params.items()), elements=elements)
+        return SlipLaw(law=law, params=tuple(params.items()), elements=elements, zones=tuple(zones))
     except InputError as e:
         text = str(e)
         if text.startswith("effect "):
             raise
         raise InputError(f"effect {spec!r}: {text.removeprefix('strand_slip: ')}") from None
+
+
+def _parse_zone(spec: str, where: str, text: str) -> CableZone:
+    """``[FAMILY/]LENGTH[/KEY=VALUE...]`` of a ``clamp`` or ``mass`` zone."""
+    syntax = f"effect {spec!r}: {where} zone {text!r}: expected [FAMILY/]LENGTH[/KEY=VALUE...]"
+    parts = [t.strip() for t in text.split("/")]
+    if not parts[0]:
+        raise InputError(syntax)
+    family = None
+    try:
+        float(parts[0])
+    except ValueError:
+        family, parts = parts[0], parts[1:]
+    if not parts or "=" in parts[0]:
+        raise InputError(f"{syntax} (the LENGTH, a fraction of the arm, is missing)")
+    length = finite_number(parts[0], f"effect {spec!r}: {where} zone length")
+    ratios, params = {}, {}
+    for item in parts[1:]:
+        key, eq, v = (t.strip() for t in item.partition("="))
+        if not eq or not key:
+            raise InputError(f"{syntax} (got {item!r})")
+        x = finite_number(v, f"effect {spec!r}: {where} zone {key}")
+        (ratios if key in _ZONE_RATIOS else params)[key] = x
+    return CableZone(where=where, length=length, law=family, params=tuple(params.items()), **ratios)
 
 
 def _check_params(params: dict) -> dict:
@@ -422,7 +503,9 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         Effect id -> value (as :func:`parse_effect` returns).
     ej_scale, chi0_scale : float or array_like, shape (n_sets,)
         Per-set factors on the cable's rigidity (``EJ``, and ``delta_EJ`` with strand slip) and on
-        the slip law's curvature scale: the run-to-run scatter.
+        the slip law's curvature scale: the run-to-run scatter. A zoned cable's zones get the same:
+        their rigidities follow the scaled ``EJ`` and ``delta_EJ`` through their ratios, and their own
+        (fixed) values in N m^2 are times ``ej_scale``, in 1/m times ``chi0_scale``.
     tol, max_iter : float, int
         The strand-slip fixed point's tolerance (on ``ln chi``) and Newton budget per pass
         (:class:`sbcal.model.cable_element.ElementCableModel`); a line that does not converge is an InputError.
@@ -473,9 +556,11 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         lp[slip.scale_name] = lp[slip.scale_name] * np.asarray(chi0_scale, dtype=float).reshape(-1)
         ej = col["EJ"] * ej_scale * factor
         linear = np.stack(np.broadcast_arrays(ej * (1 + 1j * b1), ej * (1 + 1j * b2)), axis=-1)
-        model = ElementCableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter)
+        model = ElementCableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter, zones=slip.zones)
         lp = {k: (np.asarray(v, dtype=float) if np.ndim(v) == 0 else np.asarray(v, dtype=float).reshape(-1))
               for k, v in lp.items()}
+        if slip.zones:  # the same scatter on the zones' own values (those taken from the middle follow it)
+            lp["zone_scale"] = (scale, np.asarray(chi0_scale, dtype=float).reshape(-1))
         state = model.state(damper, f, amplitude_mm_pp, linear_rigidity=linear, rocking_rad_per_m=rocking,
                             **lp, **geometry)
         if not state.converged.all():
