@@ -1,6 +1,7 @@
 """The joint cable fit: where its posterior is sampled from."""
 
 import numpy as np
+import pytest
 
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import default_bench_path, load_bench
@@ -31,3 +32,53 @@ def test_a_tail_is_compared_only_where_every_state_has_two_tests():
     assert compared_laws(FITTED_LAWS, ["1-1", "2-2"]) == ("bouc_wen", "iwan5", "iwan_tail")
     assert compared_laws(FITTED_LAWS, ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ("bouc_wen", "iwan5")
     assert compared_laws(FITTED_LAWS, ["1-1"]) == ("bouc_wen", "iwan5")
+
+
+def _fake_fit(law, pointwise, converged):
+    """A CableFit with only what compare_families reads: its PSIS-LOO pointwise and its convergence."""
+    from types import SimpleNamespace
+
+    from sbcal.inference.cable_fit import CableFit
+    return CableFit(damper="d", state="dry", law=law, tests=(), effects=(), like=None,
+                    result=SimpleNamespace(converged=converged),
+                    loo=SimpleNamespace(pointwise=np.asarray(pointwise, float)))
+
+
+def test_a_family_that_did_not_converge_cannot_win():
+    from sbcal.inference.cable_fit import compare_families, zoned_candidate
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(0.0, 1.0, 40)
+    fits = {"bouc_wen": {"dry": _fake_fit("bouc_wen", base - 2.0, True)},
+            "iwan5": {"dry": _fake_fit("iwan5", base, True)},
+            "iwan_tail": {"dry": _fake_fit("iwan_tail", base + 3.0, False)}}
+    c = compare_families(fits)
+    # iwan_tail is 120 nats above iwan5 but did not converge: iwan5 wins, the other is flagged beside it
+    assert c["best"] == "iwan5" and c["converged"] and c["higher_not_converged"] == ["iwan_tail"]
+    assert c["families"]["iwan_tail"]["converged"] is False
+    assert c["families"]["iwan_tail"]["delta_elpd"] == pytest.approx(120.0)  # this family minus the winner
+    assert c["families"]["bouc_wen"]["delta_elpd"] == pytest.approx(-80.0)
+    # nothing converged: the highest is named, and said not to have converged
+    none = compare_families({k: {"dry": _fake_fit(k, v["dry"].loo.pointwise, False)} for k, v in fits.items()})
+    assert none["best"] == "iwan_tail" and not none["converged"] and none["higher_not_converged"] == []
+    # the zoned law is fitted only after a converged best that leaves a misfit, once
+    assert zoned_candidate(c, partial=True) == "iwan5_zoned"
+    assert zoned_candidate(c, partial=False) is None and zoned_candidate(none, partial=True) is None
+    fits["iwan5_zoned"] = {"dry": _fake_fit("iwan5_zoned", base + 1.0, True)}
+    again = compare_families(fits)
+    assert again["best"] == "iwan5_zoned" and zoned_candidate(again, partial=True) is None
+
+
+def test_a_zoned_fit_starts_from_the_uniform_one(damper1):
+    from sbcal.inference.cable_fit import zoned_start
+    from sbcal.inference.priors import cable_prior
+    from sbcal.model.zones import ZONE_PARAMETERS
+
+    uniform = cable_prior("iwan5", damper1)
+    zoned = cable_prior("iwan5_zoned", damper1)
+    assert set(uniform.names) < set(zoned.names) and zoned.ndim == uniform.ndim + 8
+    median = {n: float(v) for n, v in zip(uniform.names, uniform.to_natural(((uniform.z_lower + uniform.z_upper) / 2)[None])[0])}
+    start = zoned_start(dict(median, not_a_parameter=1.0), uniform)
+    assert {k: start[k] for k in median} == median and "not_a_parameter" not in start
+    assert all(start[p.name] == 1.0 for p in ZONE_PARAMETERS if p.name.endswith("_ratio"))
+    assert "clamp_zone" not in start  # left to sample_cable: the middle of its box

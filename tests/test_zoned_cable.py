@@ -20,10 +20,10 @@ from sbcal.model.zones import ZONE_PARAMETERS, ZonedLaw
 G = STANDARD_GRID_HZ
 IWAN5 = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_micro=1e-6, chi_macro=0.02, density_exponent=-0.5,
              macro_ratio=0.1)
-UNIFORM = dict(clamp_zone=0.2, clamp_EJ_min_ratio=1.0, clamp_delta_EJ_ratio=1.0, clamp_chi_ratio=1.0,
-               mass_zone=0.1, mass_EJ_min_ratio=1.0, mass_delta_EJ_ratio=1.0, mass_chi_ratio=1.0)
-SWAGED = dict(clamp_zone=0.2, clamp_EJ_min_ratio=2.0, clamp_delta_EJ_ratio=2.5, clamp_chi_ratio=3.0,
-              mass_zone=0.1, mass_EJ_min_ratio=1.5, mass_delta_EJ_ratio=1.5, mass_chi_ratio=2.0)
+UNIFORM = dict(clamp_zone=0.2, clamp_EJ_min_ratio=1.0, clamp_delta_EJ_ratio=1.0, clamp_moment_ratio=1.0,
+               mass_zone=0.1, mass_EJ_min_ratio=1.0, mass_delta_EJ_ratio=1.0, mass_moment_ratio=1.0)
+SWAGED = dict(clamp_zone=0.2, clamp_EJ_min_ratio=2.0, clamp_delta_EJ_ratio=2.5, clamp_moment_ratio=7.5,
+              mass_zone=0.1, mass_EJ_min_ratio=1.5, mass_delta_EJ_ratio=1.5, mass_moment_ratio=3.0)
 
 
 def _zone_at(law: ZonedLaw, params: dict, s_frac: float):
@@ -113,8 +113,8 @@ def test_zoned_law_names_domain_and_errors(damper1):
     bw = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_slip=3e-3, sharpness=1.5)
     ok = model.dynamic_stiffness(damper1, G[:4], 0.5, **bw, **dict(UNIFORM, clamp_zone=np.array([0.2, 0.6])))
     assert np.isfinite(ok[0]).all() and np.isnan(ok[1]).all()  # a zone over half the arm: outside the domain
-    with pytest.raises(InputError, match="clamp_chi_ratio"):
-        model.dynamic_stiffness(damper1, G[:4], 0.5, **bw, **{k: v for k, v in UNIFORM.items() if k != "clamp_chi_ratio"})
+    with pytest.raises(InputError, match="clamp_moment_ratio"):
+        model.dynamic_stiffness(damper1, G[:4], 0.5, **bw, **{k: v for k, v in UNIFORM.items() if k != "clamp_moment_ratio"})
     with pytest.raises(InputError, match="unknown hysteresis law 'dahl_zoned_zoned'"):
         law_for("dahl_zoned_zoned")
     # the law's own curve is the middle's

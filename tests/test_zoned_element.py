@@ -19,15 +19,15 @@ from sbcal.simulate.virtual_bench import BenchConfig, SlipLaw, parse_effect, rec
 G = STANDARD_GRID_HZ
 IWAN5 = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_micro=1e-6, chi_macro=0.02, density_exponent=-0.5,
              macro_ratio=0.1)
-SWAGED = dict(clamp_zone=0.2, clamp_EJ_min_ratio=2.0, clamp_delta_EJ_ratio=2.5, clamp_chi_ratio=3.0,
-              mass_zone=0.1, mass_EJ_min_ratio=1.5, mass_delta_EJ_ratio=1.5, mass_chi_ratio=2.0)
+SWAGED = dict(clamp_zone=0.2, clamp_EJ_min_ratio=2.0, clamp_delta_EJ_ratio=2.5, clamp_moment_ratio=7.5,
+              mass_zone=0.1, mass_EJ_min_ratio=1.5, mass_delta_EJ_ratio=1.5, mass_moment_ratio=3.0)
 DAHL_CLAMP = CableZone("clamp", 0.2, "dahl", (("chi_dahl", 0.03),), EJ_min_ratio=1.5, delta_EJ_ratio=2.0)
 MASS = CableZone("mass", 0.1, EJ_min_ratio=1.5, delta_EJ_ratio=1.5, chi_ratio=2.0)
 
 
 def _ones(clamp, mass):
-    return dict(clamp_zone=clamp, clamp_EJ_min_ratio=1.0, clamp_delta_EJ_ratio=1.0, clamp_chi_ratio=1.0,
-                mass_zone=mass, mass_EJ_min_ratio=1.0, mass_delta_EJ_ratio=1.0, mass_chi_ratio=1.0)
+    return dict(clamp_zone=clamp, clamp_EJ_min_ratio=1.0, clamp_delta_EJ_ratio=1.0, clamp_moment_ratio=1.0,
+                mass_zone=mass, mass_EJ_min_ratio=1.0, mass_delta_EJ_ratio=1.0, mass_moment_ratio=1.0)
 
 
 def _rms_log(a, b):
@@ -236,11 +236,11 @@ def test_the_bench_records_a_zoned_cable(damper1):
 def test_the_bench_takes_a_fitted_zoned_law(damper1):
     # law:iwan5_zoned: the fitted model's zones (ratios default 1), the same physics as the element model's
     _, slip = parse_effect("strand_slip=law:iwan5_zoned,chi_macro:0.02,delta_EJ:55,elements:12,clamp_zone:0.2,"
-                           "mass_zone:0.1,clamp_chi_ratio:3,clamp_EJ_min_ratio:2")
+                           "mass_zone:0.1,clamp_moment_ratio:3,clamp_EJ_min_ratio:2")
     f = G[::3]
     got = response(damper1, f, 1.0, {"EJ": 4.0, "beta": 0.03}, {"strand_slip": slip})[0]
     p = dict(slip.params, delta_EJ=55.0)
-    assert p["mass_chi_ratio"] == 1.0 and p["clamp_delta_EJ_ratio"] == 1.0
+    assert p["mass_moment_ratio"] == 1.0 and p["clamp_delta_EJ_ratio"] == 1.0
     ref = ElementCableModel(law_for("iwan5_zoned"), n_elements=12).state(damper1, f, 1.0, EJ_min=4.0, beta_material=0.03, **p)
     np.testing.assert_allclose(got, ref.f_uu[0], rtol=1e-9)
 

@@ -100,7 +100,7 @@ _LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contai
 
 
 def add_cable(sub):
-    from ..model.hysteresis import FITTED_LAWS
+    from ..model.hysteresis import FITTED_LAWS, zoned
 
     p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
                        description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
@@ -108,11 +108,14 @@ def add_cable(sub):
                                    "(docs/cable.md), and store each state's posterior as "
                                    "<runs>/<damper>/cable-<state>/posterior.nc + summary.json.")
     damper_options(p)
-    p.add_argument("--law", default="best", choices=list(FITTED_LAWS) + list(_LAW_ALIASES) + ["best"],
+    p.add_argument("--law", default="best",
+                   choices=list(FITTED_LAWS) + [zoned(law) for law in FITTED_LAWS] + list(_LAW_ALIASES) + ["best"],
                    help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
                         "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), iwan_tail (Iwan "
                         "whose density ends in a power-law tail; compared only where every cable state has two tests "
-                        "or more), or best (every family that can be compared, the best by PSIS-LOO; default)")
+                        "or more); each with _zoned: the law changing along the arm, with clamp and mass zones of "
+                        "their own (docs/cable.md); or best (every family that can be compared, then the best one's "
+                        "zoned law where the uniform law leaves a misfit; the best converged by PSIS-LOO; default)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
@@ -151,6 +154,10 @@ def cmd_cable(args) -> int:
         print(f"  stored in {out}/")
     if len(fits) > 1:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
-            f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" for law, v in comparison["families"].items())
-            + f" (best: {best})")
+            f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" + ("" if v["converged"] else " (not converged)")
+            for law, v in comparison["families"].items())
+            + f" (best: {best}" + ("" if comparison["converged"] else ", NOT CONVERGED: no family converged") + ")")
+        if comparison["higher_not_converged"]:
+            print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
+                  "(a comparison rests on converged posteriors only)")
     return 0

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..core.seeds import job_seed
 from ..core.workers import default_workers, one_blas_thread, run_jobs
 from ..data.labels import state_tests
 from ..inference.cable_fit import (CableFit, cable_config, cable_likelihood, cable_seed, compare_families,
-                                   compared_laws, sample_cable)
+                                   compared_laws, sample_cable, zoned_candidate, zoned_start)
 from ..inference.calibrate import likelihood_for
-from ..inference.checks import ALPHA, GLOBAL_ALPHA, curve_moments
+from ..inference.checks import ALPHA, GLOBAL_ALPHA, curve_moments, predictive_check, qualifier
 from ..inference.likelihood import JointLikelihood
 from ..inference.priors import composed_prior
 from ..inference.sampler import SamplerConfig, sample
@@ -91,12 +93,13 @@ def _name(primary: str, secondary=()) -> str:
     return "+".join((primary,) + tuple(secondary))
 
 
-def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path) -> list:
+def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path, starts=None) -> list:
     """Fit jobs of one model: one per test, or for strand slip one per cable state and law family.
 
     A job is a :class:`FitJob`: key ``(model name, test)`` or ``(model name, state, law)``; the stream
     keyed by what the fit is (a cable fit's is :func:`sbcal.inference.cable_fit.cable_seed`, the same as
-    ``sbcal cable``'s), so no fit's draws depend on which other fits run.
+    ``sbcal cable``'s), so no fit's draws depend on which other fits run. ``starts``: a cable fit's start
+    per cable state (natural values by name; default the cable start search).
     """
     name = _name(primary, secondary)
     jobs = []
@@ -105,7 +108,8 @@ def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path) 
             for law in compared_laws(config.laws, tests):
                 like = cable_likelihood(damper, data, members, law, effects=secondary, prior_path=prior_path)
                 stream = cable_seed(seed, damper.name, state, law, tuple(secondary))
-                jobs.append(FitJob((name, state, law), like, stream, config, tuple(members)))
+                jobs.append(FitJob((name, state, law), like, stream, config, tuple(members),
+                                   (starts or {}).get(state)))
     else:
         prior = composed_prior(primary, secondary, damper, base_path=prior_path)
         model = model_for(primary, secondary)
@@ -133,6 +137,8 @@ class FitJob:
     config : DiagnoseConfig
     tests : tuple of str
         The tests the fit is of (one, or a cable state's).
+    start : dict, optional
+        A cable fit's start (natural values by name; default :func:`sbcal.inference.cable_fit.cable_start`).
     """
 
     key: tuple
@@ -140,6 +146,7 @@ class FitJob:
     stream: object
     config: DiagnoseConfig
     tests: tuple
+    start: dict | None = None
 
 
 def _fit(job: FitJob):
@@ -147,7 +154,7 @@ def _fit(job: FitJob):
     like, config = job.target, job.config
     with one_blas_thread():
         if isinstance(like, JointLikelihood):
-            return sample_cable(like, seed=job.stream, config=config.sampler(like.prior.ndim, True))
+            return sample_cable(like, seed=job.stream, config=config.sampler(like.prior.ndim, True), start=job.start)
         return sample(like, seed=job.stream, config=config.sampler(like.prior.ndim))
 
 
@@ -182,8 +189,23 @@ def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
         by_law.setdefault(law, {})[state] = CableFit(damper="", state=state, law=law, tests=(), effects=(),
                                                      result=f["result"], like=f["like"], loo=f["loo"])
     comparison = compare_families(by_law)
-    for law in comparison["families"]:
-        comparison["families"][law]["converged"] = all(cable[(name, s, law)]["converged"] for s in by_law[law])
     best = comparison["best"]
     kept = {(name, state): dict(f, law=law) for (_, state, law), f in cable.items() if law == best}
     return kept, comparison
+
+
+def _zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | None, dict | None]:
+    """The zoned family to fit next for the cable model ``name`` (:func:`sbcal.inference.cable_fit.zoned_candidate`:
+    the best family's, when it converged and leaves a misfit in a cable state by the diagnosis's own rule), and
+    its start per cable state (:func:`sbcal.inference.cable_fit.zoned_start`); ``(None, None)`` when none."""
+    kept, comparison = _choose_law(fits, name)
+    if comparison is None:
+        return None, None
+    partial = any(qualifier(predictive_check(f["like"].likes, f["mu_mean"], f["mu_var"], config.alpha, f["n_params"]),
+                            config.global_alpha) == "partial" for f in kept.values())
+    law = zoned_candidate(comparison, partial)
+    if law is None:
+        return None, None
+    starts = {state: zoned_start({n: float(np.median(v)) for n, v in f["params"].items()}, f["like"].prior)
+              for (_, state), f in kept.items()}
+    return law, starts

@@ -33,7 +33,8 @@ from ..core.seeds import job_seed, seed_key
 from ..data.labels import cable_state, state_tests
 from ..model.cable import DEFAULT_SECTIONS, CableModel
 from ..model.damper import Damper
-from ..model.hysteresis import FITTED_LAWS, law_for
+from ..model.hysteresis import FITTED_LAWS, law_for, zoned
+from ..model.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
 from .calibrate import likelihood_for
 from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, predictive_check, qualifier
 from .likelihood import JointLikelihood
@@ -43,7 +44,7 @@ from .stats import elpd_difference, loo
 
 
 __all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
-           "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "law_curves", "store_cable", "read_cable", "cable_config"]
+           "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
@@ -277,7 +278,8 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
     config : SamplerConfig, optional
         Default :func:`cable_config`.
     start : dict, optional
-        Natural values by name to polish the mode from (default: :func:`cable_start`).
+        Natural values by name to polish the mode from (default: :func:`cable_start`); a parameter it
+        does not name starts at the middle of its box (in the sampled coordinate).
     progress : str, optional
 
     Returns
@@ -287,6 +289,10 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
     s_start, s_sample = seed.spawn(2)
     if start is None:
         start = cable_start(like, np.random.default_rng(s_start))
+    elif isinstance(start, dict):
+        prior = like.prior
+        middle = prior.to_natural(((prior.z_lower + prior.z_upper) / 2)[None])[0]
+        start = {n: float(start.get(n, m)) for n, m in zip(prior.names, middle)}
     return sample(like, seed=s_sample, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
 
 
@@ -327,29 +333,44 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
 
 
 def compare_families(fits: dict) -> dict:
-    """The best family by PSIS-LOO summed over cable states, and each family's difference to it.
+    """The best family by PSIS-LOO summed over cable states, among those whose posterior converged in
+    every state, and each family's difference to it.
+
+    A family whose posterior did not converge cannot win (its ELPD rests on draws that do not
+    represent its posterior); it is listed, flagged, and named in ``higher_not_converged`` when its
+    ELPD is above the winner's. When no family converged, the highest ELPD is ``best`` with
+    ``converged`` False (a caller must not present it as a result).
 
     ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law). Returns
-    ``{"best": law, "families": {law: {"elpd", "se", "delta_elpd", "se_delta"}}}``.
+    ``{"best": law, "converged": bool, "higher_not_converged": [law], "families": {law: {"elpd", "se",
+    "delta_elpd", "se_delta", "converged"}}}``.
     """
     pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
     elpd = {law: float(p.sum()) for law, p in pointwise.items()}
-    best = max(elpd, key=elpd.get)
+    converged = {law: all(bool(f.result.converged) for f in fits[law].values()) for law in fits}
+    pool = [law for law in elpd if converged[law]] or list(elpd)
+    best = max(pool, key=elpd.get)
     out = {}
     for law, p in pointwise.items():
         d, se = elpd_difference(pointwise[best], p)
-        out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se}
-    return {"best": best, "families": out}
+        out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se,
+                    "converged": converged[law]}
+    higher = sorted((law for law in elpd if not converged[law] and elpd[law] > elpd[best]), key=lambda k: -elpd[k])
+    return {"best": best, "converged": converged[best], "higher_not_converged": higher, "families": out}
 
 
-def law_curves(law: str, draws: dict, chi) -> tuple[np.ndarray, np.ndarray]:
+def law_curves(law: str, draws: dict, chi, zone: str = "middle") -> tuple[np.ndarray, np.ndarray]:
     """The cable law's equivalent rigidity ``Re EJ*`` [N m^2] and loss factor ``Im EJ* / Re EJ*`` at
-    curvature amplitudes ``chi`` [1/m], per posterior draw: two arrays (n_draws, len(chi))."""
-    names = law_for(law).parameter_names
+    curvature amplitudes ``chi`` [1/m], per posterior draw: two arrays (n_draws, len(chi)). A zoned
+    law's (:mod:`sbcal.model.zones`) in its ``zone`` (``middle``, ``clamp`` or ``mass``)."""
+    model = law_for(law)
     chi = np.asarray(chi, float)[None, :]
     col = {k: np.asarray(v, float).reshape(-1, 1) for k, v in draws.items()}
-    slip = law_for(law).slip_rigidity(chi, **{k: col[k] for k in names})
-    ej = col["EJ_min"] * (1 + 1j * col["beta_material"]) + slip
+    lp, ratio = {k: col[k] for k in model.parameter_names}, 1.0
+    if isinstance(model, ZonedLaw):
+        _, _, lp, ratio = next(z for z in model.zones(lp) if z[0] == zone)
+        model = model.base
+    ej = col["EJ_min"] * ratio * (1 + 1j * col["beta_material"]) + model.slip_rigidity(chi, **lp)
     return ej.real, ej.imag / ej.real
 
 
@@ -445,20 +466,59 @@ def read_cable(directory) -> tuple[dict, dict]:
     return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
 
 
+def zoned_candidate(comparison: dict, partial: bool) -> str | None:
+    """The zoned family (:mod:`sbcal.model.zones`) to fit after the uniform ones, or None.
+
+    The zoned law of the best family, when that family converged and its fit leaves a misfit
+    (``partial``: the qualifier of :mod:`sbcal.inference.checks` in some cable state). The screen
+    fits only what can win: where the uniform law explains the runs within their noise, a law that
+    changes along the arm has nothing left to explain (and the uniform law, the simplest member,
+    stands); where the uniform fit did not converge, a richer one will not either.
+    """
+    best = comparison["best"]
+    if not partial or not comparison["converged"] or best.endswith(ZONED_SUFFIX):
+        return None
+    law = zoned(best)
+    return None if law in comparison["families"] else law
+
+
+def zoned_start(uniform: dict, prior: Prior) -> dict:
+    """Where a zoned fit starts: the uniform law's values (``uniform``: natural values by name, e.g. its
+    posterior median; those of ``prior``, the uniform fit's, are kept) with every zone ratio 1 — the same
+    cable, the zoned law's nested uniform member; the zones' lengths are left to :func:`sample_cable`
+    (the middle of their box). The engine polishes the mode from there: a local ascent from the uniform
+    fit's mode, instead of a global search in twice the dimensions."""
+    out = {k: float(v) for k, v in uniform.items() if k in prior.names}
+    out.update({p.name: 1.0 for p in ZONE_PARAMETERS if p.name.endswith("_ratio")})
+    return out
+
+
 def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, prior_path=None,
                      workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
     """Every cable state of a damper under every family (default: :func:`compared_laws` of
-    :data:`FITTED_LAWS`); ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of
-    :func:`compare_families`."""
+    :data:`FITTED_LAWS`, then the best one's zoned law where :func:`zoned_candidate` says so);
+    ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of :func:`compare_families`."""
     tests = list(data.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
-    laws = compared_laws(FITTED_LAWS, tests) if laws is None else tuple(laws)
+    default = laws is None
+    laws = compared_laws(FITTED_LAWS, tests) if default else tuple(laws)
     fits = {}
-    for law in laws:
+
+    def fit_law(law, starts=None):
         fits[law] = {}
         for state, members in sorted(groups.items()):
             label = f"{damper.name} cable {state} ({law})" if progress else None
             fits[law][state] = fit_cable(damper, data, members, law, seed=seed, prior_path=prior_path, progress=label,
-                                         workers=workers)
-    return fits, compare_families(fits)
+                                         workers=workers, start=(starts or {}).get(state))
+
+    for law in laws:
+        fit_law(law)
+    comparison = compare_families(fits)
+    if default:
+        partial = any(_remainder(f)[0]["qualifier"] == "partial" for f in fits[comparison["best"]].values())
+        law = zoned_candidate(comparison, partial)
+        if law is not None:
+            fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[comparison["best"]].items()})
+            comparison = compare_families(fits)
+    return fits, comparison
 

@@ -283,5 +283,15 @@ def composed_prior(primary: str, secondary, damper: Damper, *, base_path=None) -
 
 def cable_prior(law: str, damper: Damper, path=None, base_path=None) -> Prior:
     """The prior of a cable law family (``priors/cable.toml``): the cable's and the law's parameters
-    plus the ``base`` geometry of the default prior file (same schema as :func:`extension_prior`)."""
-    return extension_prior(law, damper, path, base_path, bundled="cable.toml")
+    plus the ``base`` geometry of the default prior file (same schema as :func:`extension_prior`). A
+    zoned family (``iwan5_zoned``, :mod:`sbcal.model.zones`) is its middle's prior plus the table
+    ``[zones]`` (the zones' lengths and ratios)."""
+    from ..model.zones import ZONED_SUFFIX
+
+    if not law.endswith(ZONED_SUFFIX):
+        return extension_prior(law, damper, path, base_path, bundled="cable.toml")
+    middle = extension_prior(law[:-len(ZONED_SUFFIX)], damper, path, base_path, bundled="cable.toml")
+    zones = extension_prior("zones", damper, path, base_path, bundled="cable.toml")
+    boxes = {n: middle.box(n) for n in middle.names}
+    boxes.update({n: zones.box(n) for n in zones.names if n not in boxes})
+    return Prior.from_boxes(law, boxes)

@@ -7,8 +7,9 @@ middle. :class:`ZonedLaw` gives each arm three zones along its length ``s`` (fro
 ==========  ==========================  ==========================================================
 zone        where                       law
 ==========  ==========================  ==========================================================
-clamp       ``0 <= s/L < clamp_zone``   the middle's family with ``EJ_min``, ``delta_EJ`` and every
-                                        curvature scale of the law (unit 1/m) times the zone's ratios
+clamp       ``0 <= s/L < clamp_zone``   the middle's family with ``EJ_min`` and ``delta_EJ`` times the
+                                        zone's ratios, every curvature scale of the law (unit 1/m) times
+                                        ``moment_ratio / delta_EJ_ratio``
 middle      between                     the law of the family's own parameters
 mass        ``1 - mass_zone < s/L``     as the clamp zone, with its own ratios
 ==========  ==========================  ==========================================================
@@ -17,7 +18,11 @@ The shape parameters (exponents, sharpness, ratios of the law) are the middle's 
 swage changes is how hard the wires are pressed (the stuck and slipped rigidities) and how far they
 bend before they slip (the curvature scales), not how the wires' slip curvatures are spread. Ratios
 rather than the zones' own values: a ratio of 1 is the uniform law, and in ratios the zones' values
-mix less with the middle's (docs/cable.md, "Identifiability").
+mix less with the middle's. The third ratio is of the slip moment (``delta_EJ`` times a curvature
+scale: the moment the wires' friction holds), not of the curvature scale itself: the bench pins the
+moment at which a zone slips, and the zone's ``delta_EJ`` and curvature scale trade along it (their
+logs correlated -0.99 in the posterior of ``benchmarks/zones_identifiability.py``; ``docs/cable.md``,
+"Zones").
 
 The section models use :meth:`ZonedLaw.zones`; :meth:`HysteresisLaw.slip_rigidity` of a zoned law is its
 middle's (the curve of the free cable).
@@ -47,7 +52,8 @@ def _zone_parameters(zone: str) -> tuple:
         LawParameter(f"{zone}_zone", "1", f"length of the {zone} zone {where}, as a fraction of the arm", high=0.5),
         LawParameter(f"{zone}_EJ_min_ratio", "1", f"the {zone} zone's EJ_min over the middle's"),
         LawParameter(f"{zone}_delta_EJ_ratio", "1", f"the {zone} zone's delta_EJ over the middle's"),
-        LawParameter(f"{zone}_chi_ratio", "1", f"the {zone} zone's curvature scales over the middle's"),
+        LawParameter(f"{zone}_moment_ratio", "1", f"the {zone} zone's slip moments (delta_EJ times each curvature "
+                     "scale) over the middle's: its curvature scales are the middle's times moment_ratio / delta_EJ_ratio"),
     )
 
 
@@ -98,11 +104,12 @@ class ZonedLaw(HysteresisLaw):
         out = [("middle", (clamp, 1.0 - np.asarray(mass)), base, 1.0)]
         for zone, span in (("clamp", (0.0 * np.asarray(clamp), clamp)), ("mass", (1.0 - np.asarray(mass), 1.0))):
             lp = {}
+            delta = params[f"{zone}_delta_EJ_ratio"]
             for k, v in base.items():
                 if units[k] == "N m^2":
-                    v = v * params[f"{zone}_delta_EJ_ratio"]
+                    v = v * delta
                 elif units[k] == "1/m":
-                    v = v * params[f"{zone}_chi_ratio"]
+                    v = v * (params[f"{zone}_moment_ratio"] / delta)
                 lp[k] = v
             out.append((zone, span, lp, params[f"{zone}_EJ_min_ratio"]))
         return out

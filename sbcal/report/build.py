@@ -180,6 +180,7 @@ def _law_figure(cables: dict, path: Path) -> str:
     """The cable law of each state: EJ and loss factor against curvature amplitude, median and 90 %
     band, with the curvature range each test reached."""
     from ..inference.cable_fit import law_curves
+    from ..model.zones import ZONED_SUFFIX
 
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -190,11 +191,16 @@ def _law_figure(cables: dict, path: Path) -> str:
         hi = max((r["curvature_max"] for r in reached.values()), default=1e-1)
         chi = np.geomspace(max(lo / 10, 1e-7), hi * 10, 120)
         keep = np.linspace(0, next(iter(draws.values())).size - 1, min(400, next(iter(draws.values())).size)).astype(int)
-        ej, loss = law_curves(summary["law"], {k: v[keep] for k, v in draws.items()}, chi)
-        for ax, y in ((axes[0], ej), (axes[1], loss)):
-            q05, q50, q95 = np.quantile(y, [0.05, 0.5, 0.95], axis=0)
-            ax.fill_between(chi, q05, q95, color=color, alpha=0.25)
-            ax.plot(chi, q50, color=color, lw=1.5, label=f"{state} cable ({summary['law']}), median and 90 %")
+        zoned = summary["law"].endswith(ZONED_SUFFIX)
+        for zone, style in (("middle", "-"), ("clamp", "--"), ("mass", ":")) if zoned else (("middle", "-"),):
+            ej, loss = law_curves(summary["law"], {k: v[keep] for k, v in draws.items()}, chi, zone=zone)
+            where = f", {zone}" + (" of the arm" if zone == "middle" else " zone") if zoned else ""
+            for ax, y in ((axes[0], ej), (axes[1], loss)):
+                q05, q50, q95 = np.quantile(y, [0.05, 0.5, 0.95], axis=0)
+                if zone == "middle":
+                    ax.fill_between(chi, q05, q95, color=color, alpha=0.25)
+                ax.plot(chi, q50, color=color, lw=1.5, ls=style,
+                        label=f"{state} cable ({summary['law']}{where}), median" + (" and 90 %" if zone == "middle" else ""))
         for k, (t, r) in enumerate(sorted(reached.items())):  # the range each test bent the arms over
             yk = 0.96 - 0.05 * k - 0.4 * i
             axes[0].plot([r["curvature_min"], r["curvature_max"]], [yk, yk], transform=axes[0].get_xaxis_transform(),
