@@ -74,7 +74,8 @@ def cmd_diagnose(args) -> int:
         print(f"  ... {len(result['bands']) - 12} more bands")
     for r in result["ranking"]:
         print(f"  {r['effect']:30s} delta ELPD {r['delta_elpd']:10.1f} +- {r['se']:7.1f}, "
-              f"removes {r['explained']:.0%} of the misfit in the bands")
+              f"removes {r['explained']:.0%} of the misfit where it is"
+              + ("" if r["converged"] else " (NOT converged: cannot be the verdict)"))
     if result["parameters"]:
         print(f"  {result['parameters']['words']}")
     b, a = result["before"], result["after"]

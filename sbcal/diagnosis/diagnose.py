@@ -15,8 +15,9 @@ model it and show the fit improve (``docs/diagnose.md``).
    best family by PSIS-LOO) and compared with the baseline by PSIS-LOO grouped by run.
 4. **Verdict**: ``none`` when neither the lines nor the global check find a misfit; else the best
    extension when it beats the baseline clearly (``delta_elpd > clear_se * se``) *and* removes at least
-   ``min_explained`` of the misfit (the squared z in the located bands; without bands, the global
-   excess over chance); else ``unexplained``.
+   ``min_explained`` of the misfit over chance where it is (:func:`_misfit`: the bands' squared z beyond
+   chance, an isolated off line only beyond its threshold; and, when the global check fails, the excess
+   of all the other lines); else ``unexplained``.
 5. **Secondary**: on the verdict's model the misfit is located again; where some remains, the
    measurement-chain effects that compose with it (:data:`sbcal.inference.cable_fit.SECONDARY`,
    :data:`sbcal.model.extensions.CHAIN`) are screened and refitted on top, and the same rule names a
@@ -44,9 +45,9 @@ from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
-from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits
+from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits, _zoned_law
 from .remainder import remainder
-from .locate import _band_rms, _band_sq, _bands, _rocking_signature, _screen, _signatures, _statistics
+from .locate import _band_excess, _band_rms, _bands, _rocking_signature, _screen, _signatures, _statistics
 from .words import _parameters
 
 
@@ -72,12 +73,13 @@ class _Case:
     def n_runs(self) -> dict:
         return {t: lk.y.shape[1] for t, lk in zip(self.tests, self.likes)}
 
-    def fit(self, models, stage: str) -> dict:
-        """Fit ``models`` (``(primary, secondary effects)`` pairs) in one batch of jobs; ``{key: fit}``."""
+    def fit(self, models, stage: str, starts=None) -> dict:
+        """Fit ``models`` (``(primary, secondary effects)`` pairs) in one batch of jobs; ``{key: fit}``
+        (``starts``: a cable fit's start per cable state, as :func:`sbcal.diagnosis.fits._jobs` takes)."""
         jobs = []
         for primary, secondary in models:
             jobs += _jobs(primary, secondary, damper=self.damper, data=self.data, tests=self.tests, seed=self.seed,
-                          config=self.config, prior_path=self.prior_path)
+                          config=self.config, prior_path=self.prior_path, starts=starts)
         return _run_fits(jobs, self.config, self.label(stage))
 
     def label(self, stage: str) -> str | None:
@@ -134,17 +136,34 @@ def _summary(name, fits, *, keys, check, bands, tests, ref_i=None) -> dict:
     return out
 
 
-def _misfit(bands, tests, z, glob) -> float:
-    """The misfit an extension must remove: squared z in the bands, else the global excess over chance."""
-    return _band_sq(bands, tests, z) if bands else max(glob["excess"], 0.0)
+def _misfit(bands, tests, check, *, global_part: bool) -> float:
+    """The misfit an extension must remove, as its excess over chance where the misfit is.
+
+    ``check`` is a model's :func:`_check_model`; ``bands`` and ``global_part`` say where the misfit is (the
+    reference model's bands, and whether its global check failed), so that two models are measured on the
+    same lines. The bands' squared z beyond chance (:func:`sbcal.diagnosis.locate._band_excess`: an isolated
+    off line only by how far it passes what chance gives for the largest of all lines); with ``global_part``,
+    added, the excess over chance of the lines outside the bands: their squared normal scores (what the
+    global check sums) less their share of its degrees of freedom, floored at 0. Without bands and with the
+    global part it is the global excess ``chi2 - dof``.
+    """
+    z, thr, _, _, glob, c = check
+    total, inside = _band_excess(bands, tests, z, thr)
+    if global_part:
+        u2 = np.concatenate([np.ravel(s) ** 2 for s in c.scores])
+        out = ~np.concatenate([m.ravel() for m in inside])
+        total += max(float(np.sum(u2[out])) - glob["dof"] * out.sum() / u2.size, 0.0)
+    return total
 
 
-def _explained(bands, tests, *, ref_check, new_check) -> float:
-    """The share of the reference model's misfit (:func:`_misfit`) a new model removes."""
-    before = _misfit(bands, tests, ref_check[0], ref_check[4])
+def _explained(bands, tests, *, ref_check, new_check, global_alpha: float) -> float:
+    """The share of the reference model's misfit (:func:`_misfit`) a new model removes; the global part
+    counts when the reference model fails the global check (p < ``global_alpha``)."""
+    where = ref_check[4]["p_value"] < global_alpha
+    before = _misfit(bands, tests, ref_check, global_part=where)
     if before <= 0:
         return 0.0
-    return float(1 - _misfit(bands, tests, new_check[0], new_check[4]) / before)
+    return float(1 - _misfit(bands, tests, new_check, global_part=where) / before)
 
 
 # --- the diagnosis -------------------------------------------------------------------------------
@@ -160,7 +179,8 @@ def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
         keys = sorted(keys_fits)
         checks[e] = _check_model(keys_fits, keys, case)
         s = _summary(name, keys_fits, keys=keys, check=checks[e], bands=bands, tests=tests, ref_i=ref_check[3])
-        s["explained"] = _explained(bands, tests, ref_check=ref_check, new_check=checks[e])
+        s["explained"] = _explained(bands, tests, ref_check=ref_check, new_check=checks[e],
+                                    global_alpha=case.config.global_alpha)
         if comparison is not None:
             s["law"] = comparison
             laws[e] = comparison
@@ -172,9 +192,11 @@ def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
 
 
 def _decide(misfit: bool, ranking, config) -> str | None:
+    """The verdict: the best converged extension by ELPD when it passes the rule; a model whose
+    posterior did not converge cannot be the verdict (it stays in the ranking, flagged)."""
     if not misfit:
         return None
-    best = ranking[0] if ranking else None
+    best = next((r for r in ranking if r["converged"]), None)
     if best and best["delta_elpd"] > config.clear_se * best["se"] and best["explained"] >= config.min_explained:
         return best["effect"]
     return "unexplained"
@@ -258,6 +280,10 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
     if candidates:
         fits.update(case.fit([(e, ()) for e in candidates], f"{len(candidates)} candidate extension(s)"))
+    law, starts = _zoned_law(fits, "strand_slip", config) if "strand_slip" in candidates else (None, None)
+    if law is not None:  # the uniform law leaves a misfit: its law changing along the arm, from the uniform one
+        fits.update(replace(case, config=replace(config, laws=(law,))).fit([("strand_slip", ())], f"zoned law {law}",
+                                                                           starts=starts))
     ranking, summaries, checks, kept, laws = _compare(candidates, lambda e: e, fits, ref_check=base_check,
                                                       bands=bands, case=case)
 
@@ -301,8 +327,10 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
         "rule": (f"a misfit when a line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
                  f"{config.alpha:g} over all lines) or the residual as a whole exceeds chance (chi-square of the lines' "
                  f"normal scores, p < {config.global_alpha:g}); then the best extension if delta_elpd > "
-                 f"{config.clear_se:g} se and it removes >= {config.min_explained:.0%} of the misfit (squared z in the "
-                 f"bands; without bands, the global excess over chance); else unexplained; no misfit: none. The same "
+                 f"{config.clear_se:g} se and it removes >= {config.min_explained:.0%} of the misfit over chance where it is "
+                 "(per band its squared z less 1 a line, an isolated off line less its threshold squared; and when the "
+                 "global check fails, the excess over chance of the lines outside the bands); else unexplained; "
+                 "no misfit: none. The same "
                  "rule names a secondary effect on the verdict's model, and judges what the final model leaves: "
                  "no misfit, complete; else partial."),
         "ranking": ranking,

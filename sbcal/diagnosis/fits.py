@@ -42,8 +42,8 @@ class DiagnoseConfig:
     clear_se : float
         An extension beats the model below it clearly when ``delta_elpd > clear_se * se``.
     min_explained : float
-        ... and removes at least this share of the misfit (in the bands; without bands, of the
-        global excess over chance).
+        ... and removes at least this share of the misfit where it is (its excess over chance in the
+        bands and, when the global check fails, outside them: ``docs/diagnose.md``, "Verdict").
     screen_t : float
         Screening: |t| of the EJ-versus-amplitude trend that admits ``strand_slip``.
     screen_share : float

@@ -33,9 +33,24 @@ def _bands(tests, likes, z, thr) -> list:
     return bands
 
 
-def _band_sq(bands, tests, z) -> float:
+def _band_excess(bands, tests, z, thr) -> tuple[float, list]:
+    """The squared z of the bands beyond chance, and their lines (per test a mask ``(2, n_freq)``).
+
+    Per band, floored at 0: a band of several lines counts its lines' z^2 less their expectation under
+    chance (1 a line); a band of one line (an isolated off line) counts its z^2 less its threshold's square,
+    the level the largest of all the lines reaches by chance with probability alpha (``docs/diagnose.md``,
+    "Verdict"): an isolated line is what chance gives for the largest of N lines unless it passes that far.
+    """
     index = {t: i for i, t in enumerate(tests)}
-    return float(sum(np.sum(z[index[b["test"]]][_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2) for b in bands))
+    inside = [np.zeros(np.shape(zt), bool) for zt in z]
+    total = 0.0
+    for b in bands:
+        i, q, lines = index[b["test"]], _QUANTITIES.index(b["quantity"]), b["lines"]
+        inside[i][q, lines] = True
+        z2 = z[i][q, lines] ** 2
+        chance = np.broadcast_to(thr[i], np.shape(z[i]))[q, lines] ** 2 if len(lines) == 1 else np.ones(len(lines))
+        total += max(float(np.sum(z2 - chance)), 0.0)
+    return total, inside
 
 
 def _band_rms(bands, tests, z) -> list:
