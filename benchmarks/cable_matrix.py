@@ -29,8 +29,9 @@ set otherwise:
   noise-free curves (``BenchConfig.ideal()``: the same cable without scatter or noise), magnitude [%]
   and phase [deg].
 
-Targets: the verdict model within 2 % and 1.5 deg when the law is one of the fitted families, within
-4 % and 3 deg across laws (and for the zoned rows), at every amplitude from 0.1 to 2 mm.
+Targets: the verdict model within 2 % and 1.5 deg when the law is one of the fitted families and for the
+zoned rows (whose verdict must be a zoned law), within 4 % and 3 deg across laws, at every amplitude from
+0.1 to 2 mm.
 """
 
 from __future__ import annotations
@@ -185,8 +186,14 @@ def main(argv=None) -> int:
             if r["verdict"] != "strand_slip":
                 ok = False
                 continue
-            matched = r["verdict_law"] == law and law in args.families  # a zoned row is never its own family
-            mag_t, ph_t = (2.0, 1.5) if matched else (4.0, 3.0)
+            # the issue's targets: 2 % / 1.5 deg for a fitted family's own data and for the zoned rows (with a
+            # zoned law: issue 20), 4 % / 3 deg across laws
+            matched = r["verdict_law"] == law and law in args.families
+            zoned_row = law.startswith("zoned_")
+            mag_t, ph_t = (2.0, 1.5) if matched or zoned_row else (4.0, 3.0)
+            if zoned_row and not str(r["verdict_law"]).endswith("_zoned"):
+                print(f"  zoned row: verdict law {r['verdict_law']} is not zoned: MISSED")
+                ok = False
             meets = all(v["magnitude_pct"] <= mag_t and v["phase_deg"] <= ph_t for v in r["per_test"].values())
             cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}" for t, v in r["per_test"].items())
             print(f"  verdict model {r['verdict_law']}: converged {r['converged']} (R-hat max {r['r_hat_max']}, ESS min "
