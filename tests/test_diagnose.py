@@ -304,3 +304,19 @@ def test_diagnose_fits_the_runs_the_clean_stage_stored(tmp_path):
                              config=settings.diagnose, prior_path=None):
                 likes = job.target.likes if isinstance(job.target, JointLikelihood) else [job.target]
                 assert [lk.y.shape[1] for lk in likes] == [kept] * len(likes), (z, primary)
+
+
+def test_strand_slip_is_screened_by_its_amplitude_trend_where_measured():
+    """The cable law's first-order signature is EJ falling with the amplitude; a misfit that grows with the
+    curvature (resonance-borne) admits it only where no cable state has the amplitudes for the trend."""
+    from sbcal.diagnosis.fits import DiagnoseConfig
+    from sbcal.diagnosis.locate import _screen_one
+
+    config = DiagnoseConfig()
+    flat = {"amplitude_trend": {"dry": {"slope": -0.01, "t": -0.8, "n_tests": 7}}, "curvature_correlation": 0.6}
+    assert _screen_one("strand_slip", flat, config)[0] is False  # a mass's misfit at the resonances: not slip
+    slope = {"amplitude_trend": {"dry": {"slope": -0.2, "t": -9.0, "n_tests": 7}}, "curvature_correlation": 0.1}
+    assert _screen_one("strand_slip", slope, config)[0] is True
+    few = {"amplitude_trend": {}, "curvature_correlation": 0.6}  # two amplitudes: no trend to measure
+    kept, why = _screen_one("strand_slip", few, config)
+    assert kept is True and "curvature correlation 0.60" in why

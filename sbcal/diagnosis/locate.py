@@ -148,10 +148,16 @@ def _statistics(damper, tests, likes, fits, z) -> dict:
 def _screen_one(eid, stat, config) -> tuple[bool, str]:
     sig = EXTENSIONS[eid].signature
     if sig == "amplitude_trend":
-        ts = [abs(v["t"]) for v in stat.get("amplitude_trend", {}).values()]
-        t_max = max(ts) if ts else 0.0
-        kept = t_max >= config.screen_t or stat.get("curvature_correlation", 0.0) >= config.screen_corr
-        return kept, f"|t| of the EJ-amplitude trend {t_max:.1f}, curvature correlation {stat.get('curvature_correlation', 0.0):.2f}"
+        # the cable law's first-order signature is a rigidity that falls with the drive amplitude: where a
+        # cable state has the amplitudes to show the trend, it decides (a misfit that grows with the
+        # curvature within a test is also every resonance-borne effect's); else the curvature correlation
+        trend = stat.get("amplitude_trend", {})
+        t_max = max((abs(v["t"]) for v in trend.values()), default=0.0)
+        corr = stat.get("curvature_correlation", 0.0)
+        if trend:
+            return t_max >= config.screen_t, (f"|t| of the EJ-amplitude trend {t_max:.1f} (curvature correlation "
+                                              f"{corr:.2f}, not used: the trend is measured)")
+        return corr >= config.screen_corr, f"no cable state with 3 amplitudes: curvature correlation {corr:.2f}"
     if sig in ("phase_linear", "magnitude_omega2"):
         share = stat[sig]["share"]
         return share >= config.screen_share, f"share of the misfit explained by the signature {share:.2f}"
