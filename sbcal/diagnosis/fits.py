@@ -3,7 +3,7 @@ top), one fit job per test or per cable state and law, run in worker processes, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -80,11 +80,13 @@ class DiagnoseConfig:
     max_steps: int = 20000
     cable_max_steps: int = 8000
 
-    def sampler(self, ndim: int, joint: bool = False) -> SamplerConfig:
+    def sampler(self, ndim: int, joint: bool = False, workers: int = 1) -> SamplerConfig:
+        """The engine's settings of one fit; ``workers``: processes for its ensembles (the draws do not
+        depend on them)."""
         if joint:  # the cable fit's own settings, capped as here
-            return cable_config(ndim, workers=1, max_steps=self.cable_max_steps, max_draws=self.draws)
+            return cable_config(ndim, workers=workers, max_steps=self.cable_max_steps, max_draws=self.draws)
         return SamplerConfig(nwalkers=max(16, 2 * ndim + 2), max_draws=self.draws, max_steps=self.max_steps,
-                             workers=1)
+                             workers=workers)
 
 
 # --- models: a primary effect, maybe with secondary ones on top ----------------------------------
@@ -139,6 +141,8 @@ class FitJob:
         The tests the fit is of (one, or a cable state's).
     start : dict, optional
         A cable fit's start (natural values by name; default :func:`sbcal.inference.cable_fit.cable_start`).
+    workers : int
+        Processes for the fit's own ensembles (more than 1 only when its batch leaves workers idle).
     """
 
     key: tuple
@@ -147,6 +151,7 @@ class FitJob:
     config: DiagnoseConfig
     tests: tuple
     start: dict | None = None
+    workers: int = 1
 
 
 def _fit(job: FitJob):
@@ -154,8 +159,9 @@ def _fit(job: FitJob):
     like, config = job.target, job.config
     with one_blas_thread():
         if isinstance(like, JointLikelihood):
-            return sample_cable(like, seed=job.stream, config=config.sampler(like.prior.ndim, True), start=job.start)
-        return sample(like, seed=job.stream, config=config.sampler(like.prior.ndim))
+            return sample_cable(like, seed=job.stream, config=config.sampler(like.prior.ndim, True, job.workers),
+                                start=job.start)
+        return sample(like, seed=job.stream, config=config.sampler(like.prior.ndim, workers=job.workers))
 
 
 def _posterior(job: FitJob, res) -> dict:
@@ -172,8 +178,11 @@ def _posterior(job: FitJob, res) -> dict:
 
 
 def _run_fits(jobs, config, label) -> dict:
-    """Run fits, ``config.workers`` at a time (the costly cable fits first); ``{key: fit}``."""
+    """Run fits, ``config.workers`` at a time (the costly cable fits first); ``{key: fit}``. A batch of
+    fewer fits than workers (a zoned law's one cable state) runs each fit's ensembles in parallel instead."""
     jobs = sorted(jobs, key=lambda j: not isinstance(j.target, JointLikelihood))
+    if 0 < len(jobs) < config.workers:
+        jobs = [replace(j, workers=config.workers // len(jobs)) for j in jobs]
     done = run_jobs(_fit, jobs, workers=config.workers, label=label, unit="fit")
     return {job.key: _posterior(job, res) for job, res in zip(jobs, done)}
 
