@@ -70,6 +70,17 @@ def test_tiny_amplitude_is_the_stuck_cable(damper1):
     np.testing.assert_allclose(got, dynamic_stiffness(damper1, G, EJ=ej, beta=beta), rtol=1e-6)
 
 
+def _node_masses(damper):
+    """Per arm (from the clamp): its length, ``mu L / 420``, the mass node's block (end mass + consistent
+    cable mass) and its coupling to the clamp node."""
+    out = []
+    for L, m, J, a in ((damper.L1, damper.m1, damper.J1, -damper.a1), (damper.L2, damper.m2, damper.J2, damper.a2)):
+        c = damper.mu * L / 420
+        m_node = np.array([[m + 156 * c, m * a - 22 * c * L], [m * a - 22 * c * L, J + m * a * a + 4 * c * L * L]])
+        out.append((L, c, m_node, c * np.array([[54, 13 * L], [-13 * L, -3 * L * L]])))
+    return out
+
+
 def _plain_arm_check(damper, law, params, freq_hz, amp_mm, state):
     """An independent evaluation of the arm equations at the returned loads.
 
@@ -87,11 +98,7 @@ def _plain_arm_check(damper, law, params, freq_hz, amp_mm, state):
     x0 = amp_mm / 2 * 1e-3
     mismatch, curv = np.zeros((freq_hz.size, 2)), np.zeros((freq_hz.size, 2, s_frac.size))
     f_uu = -(2 * np.pi * freq_hz) ** 2 * damper.mc + 0j
-    for arm, (L, m, J, a) in enumerate(((damper.L1, damper.m1, damper.J1, -damper.a1),
-                                        (damper.L2, damper.m2, damper.J2, damper.a2))):
-        c = damper.mu * L / 420
-        m_node = np.array([[m + 156 * c, m * a - 22 * c * L], [m * a - 22 * c * L, J + m * a * a + 4 * c * L * L]])
-        m_cross = c * np.array([[54, 13 * L], [-13 * L, -3 * L * L]])
+    for arm, (L, c, m_node, m_cross) in enumerate(_node_masses(damper)):
         for k, f in enumerate(freq_hz):
             w2 = (2 * np.pi * f) ** 2
             V, M_tip = state.load[0, k, arm]
@@ -245,26 +252,29 @@ def test_element_base_rocking_is_f_uu_plus_r_f_uphi(damper1):
     np.testing.assert_allclose(got, H[..., 0, 0] + 3.0 * H[..., 0, 1], rtol=1e-10)
 
 
-def _dense_arm(damper, freq_hz, amp_mm, rigidity, arm, n, mu):
-    """Plain assembly of one arm (clamp node 0 .. end mass node n) and a dense solve: rms curvatures."""
+def _dense_arm(damper, freq_hz, amp_mm, rigidity, arm, mesh):
+    """Plain assembly of one arm on a mesh (node positions as fractions of the arm, clamp node 0 .. end
+    mass; the zoned cables' meshes are not uniform) and a dense solve: each element's rms curvature."""
     L, m, J, a = ((damper.L1, damper.m1, damper.J1, -damper.a1) if arm == 0 else
                   (damper.L2, damper.m2, damper.J2, damper.a2))
-    h = L / n
-    K = np.array([[12, 6 * h, -12, 6 * h], [6 * h, 4 * h * h, -6 * h, 2 * h * h],
-                  [-12, -6 * h, 12, -6 * h], [6 * h, 2 * h * h, -6 * h, 4 * h * h]]) / h**3
-    M = mu * h / 420 * np.array([[156, 22 * h, 54, -13 * h], [22 * h, 4 * h * h, 13 * h, -3 * h * h],
-                                 [54, 13 * h, 156, -22 * h], [-13 * h, -3 * h * h, -22 * h, 4 * h * h]])
+    n = mesh.size - 1
     out = []
     for k, f in enumerate(freq_hz):
         w2 = (2 * np.pi * f) ** 2
         Z = np.zeros((2 * n + 2, 2 * n + 2), dtype=complex)
         for e in range(n):
+            h = L * (mesh[e + 1] - mesh[e])
+            K = np.array([[12, 6 * h, -12, 6 * h], [6 * h, 4 * h * h, -6 * h, 2 * h * h],
+                          [-12, -6 * h, 12, -6 * h], [6 * h, 2 * h * h, -6 * h, 4 * h * h]]) / h**3
+            M = damper.mu * h / 420 * np.array([[156, 22 * h, 54, -13 * h], [22 * h, 4 * h * h, 13 * h, -3 * h * h],
+                                                [54, 13 * h, 156, -22 * h], [-13 * h, -3 * h * h, -22 * h, 4 * h * h]])
             Z[2 * e:2 * e + 4, 2 * e:2 * e + 4] += rigidity[k, e] * K - w2 * M
         Z[-2:, -2:] -= w2 * np.array([[m, m * a], [m * a, J + m * a * a]])
         xb = np.array([amp_mm / 2 * 1e-3, 0.0])
         x = np.concatenate([xb, np.linalg.solve(Z[2:, 2:], -Z[2:, :2] @ xb)])
         rms = []
         for e in range(n):
+            h = L * (mesh[e + 1] - mesh[e])
             wa, ta, wb, tb = x[2 * e:2 * e + 4]
             c0 = (-6 * wa - 4 * h * ta + 6 * wb - 2 * h * tb) / h**2
             c1 = (6 * wa + 2 * h * ta - 6 * wb + 4 * h * tb) / h**2
@@ -284,7 +294,7 @@ def test_element_state_is_a_fixed_point_of_the_plain_assembly(damper1, law, para
         expect = params["EJ_min"] * (1 + 1j * params["beta_material"]) + law.slip_rigidity(st.curvature[0, :, arm], **lp)
         np.testing.assert_allclose(st.rigidity[0, :, arm], expect, rtol=1e-12)
         # ... and a dense solve with those rigidities gives back the curvatures (to the tolerance)
-        dense = _dense_arm(damper1, G, 0.5, st.rigidity[0, :, arm], arm, n, damper1.mu)
+        dense = _dense_arm(damper1, G, 0.5, st.rigidity[0, :, arm], arm, np.linspace(0.0, 1.0, n + 1))
         np.testing.assert_allclose(st.curvature[0, :, arm], dense, rtol=1e-8)
     assert np.all(st.f_uu.imag > 0)  # passive
     assert st.curvature.shape == (1, G.size, 2, n) and st.mesh.shape == (n + 1,)

@@ -17,6 +17,8 @@ from sbcal.model.fem import STANDARD_GRID_HZ
 from sbcal.model.hysteresis import law_for, zoned
 from sbcal.model.zones import ZONE_PARAMETERS, ZonedLaw
 
+from .test_cable import _node_masses
+
 G = STANDARD_GRID_HZ
 IWAN5 = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_micro=1e-6, chi_macro=0.02, density_exponent=-0.5,
              macro_ratio=0.1)
@@ -54,11 +56,7 @@ def _arm_mismatch(damper1, zones):
     np.testing.assert_allclose(np.sort(st.sections[0]), np.sort(s_frac), rtol=1e-13)
     x0 = amp / 2 * 1e-3
     worst = 0.0
-    for arm, (L, m, J, a) in enumerate(((damper1.L1, damper1.m1, damper1.J1, -damper1.a1),
-                                        (damper1.L2, damper1.m2, damper1.J2, damper1.a2))):
-        c = damper1.mu * L / 420
-        m_node = np.array([[m + 156 * c, m * a - 22 * c * L], [m * a - 22 * c * L, J + m * a * a + 4 * c * L * L]])
-        m_cross = c * np.array([[54, 13 * L], [-13 * L, -3 * L * L]])
+    for arm, (L, _, m_node, m_cross) in enumerate(_node_masses(damper1)):
         for k, fk in enumerate(f):
             V, M_tip = st.load[0, k, arm]
             chi = np.zeros(s_frac.size, dtype=complex)

@@ -16,6 +16,8 @@ from sbcal.model.fem import STANDARD_GRID_HZ
 from sbcal.model.hysteresis import law_for
 from sbcal.simulate.virtual_bench import BenchConfig, SlipLaw, parse_effect, record, response
 
+from .test_cable import _dense_arm
+
 G = STANDARD_GRID_HZ
 IWAN5 = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_micro=1e-6, chi_macro=0.02, density_exponent=-0.5,
              macro_ratio=0.1)
@@ -74,37 +76,6 @@ def test_zoned_element_model_converges_with_refinement(damper1):
         mag = [e[0] for e in errors]
         assert mag[0] > mag[1] > mag[2] and mag[2] < 0.2, errors  # % rms; measured 0.09-0.10 at N = 24
         assert errors[2][1] < 0.15, errors  # deg; measured 0.05-0.08
-
-
-def _dense_arm(damper, freq_hz, amp_mm, rigidity, arm, mesh):
-    """Plain assembly of one arm on a non-uniform mesh (clamp node 0 .. end mass) and a dense solve:
-    each element's rms curvature."""
-    L, m, J, a = ((damper.L1, damper.m1, damper.J1, -damper.a1) if arm == 0 else
-                  (damper.L2, damper.m2, damper.J2, damper.a2))
-    n = mesh.size - 1
-    out = []
-    for k, f in enumerate(freq_hz):
-        w2 = (2 * np.pi * f) ** 2
-        Z = np.zeros((2 * n + 2, 2 * n + 2), dtype=complex)
-        for e in range(n):
-            h = L * (mesh[e + 1] - mesh[e])
-            K = np.array([[12, 6 * h, -12, 6 * h], [6 * h, 4 * h * h, -6 * h, 2 * h * h],
-                          [-12, -6 * h, 12, -6 * h], [6 * h, 2 * h * h, -6 * h, 4 * h * h]]) / h**3
-            M = damper.mu * h / 420 * np.array([[156, 22 * h, 54, -13 * h], [22 * h, 4 * h * h, 13 * h, -3 * h * h],
-                                                [54, 13 * h, 156, -22 * h], [-13 * h, -3 * h * h, -22 * h, 4 * h * h]])
-            Z[2 * e:2 * e + 4, 2 * e:2 * e + 4] += rigidity[k, e] * K - w2 * M
-        Z[-2:, -2:] -= w2 * np.array([[m, m * a], [m * a, J + m * a * a]])
-        xb = np.array([amp_mm / 2 * 1e-3, 0.0])
-        x = np.concatenate([xb, np.linalg.solve(Z[2:, 2:], -Z[2:, :2] @ xb)])
-        rms = []
-        for e in range(n):
-            h = L * (mesh[e + 1] - mesh[e])
-            wa, ta, wb, tb = x[2 * e:2 * e + 4]
-            c0 = (-6 * wa - 4 * h * ta + 6 * wb - 2 * h * tb) / h**2
-            c1 = (6 * wa + 2 * h * ta - 6 * wb + 4 * h * tb) / h**2
-            rms.append(np.sqrt((abs(c0) ** 2 + abs(c1) ** 2 + (c0 * np.conj(c1)).real) / 3))
-        out.append(rms)
-    return np.array(out)
 
 
 def test_zoned_state_is_a_fixed_point_of_the_plain_assembly(damper1):
