@@ -54,7 +54,7 @@ from sbcal.data.readers import load_bench  # noqa: E402
 from sbcal.inference.cable_fit import cable_likelihood, read_cable  # noqa: E402
 from sbcal.model.damper import load_damper  # noqa: E402
 from sbcal.diagnosis.diagnose import DiagnoseConfig, diagnose  # noqa: E402
-from sbcal.model.cable_element import CableZone  # noqa: E402
+from sbcal.model.cable_zones import CableZone  # noqa: E402
 from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
 from sbcal.model.fem import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.simulate.virtual_bench import (DEFAULT_TESTS, BenchConfig, SlipLaw, record, response,  # noqa: E402

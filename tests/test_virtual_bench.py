@@ -11,7 +11,8 @@ from sbcal.data.bench import BENCH_COLUMNS, curves_to_frame, write_bench
 from sbcal.cli import main
 from sbcal.model.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, free_response
 from sbcal.model.reference import _beam_k, _beam_m
-from sbcal.model.cable_element import CableZone, ElementCableModel
+from sbcal.model.cable_element import ElementCableModel
+from sbcal.model.cable_zones import CableZone
 from sbcal.model.hysteresis import LognormalIwanLaw
 from sbcal.simulate.virtual_bench import (
     BENCH_ELEMENTS, DEFAULT_TESTS, EFFECTS, EXTRA_EFFECTS, BenchConfig, FixtureResonance, SlipLaw, parse_effect,

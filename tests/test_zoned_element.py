@@ -11,7 +11,8 @@ import pytest
 
 from sbcal.core.errors import InputError
 from sbcal.model.cable import CableModel
-from sbcal.model.cable_element import MIN_ZONE_ELEMENTS, CableZone, ElementCableModel
+from sbcal.model.cable_element import ElementCableModel
+from sbcal.model.cable_zones import MIN_ZONE_ELEMENTS, CableZone
 from sbcal.model.fem import STANDARD_GRID_HZ
 from sbcal.model.hysteresis import law_for
 from sbcal.simulate.virtual_bench import BenchConfig, SlipLaw, parse_effect, record, response

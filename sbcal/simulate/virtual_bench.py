@@ -44,7 +44,8 @@ from ..core._io import finite_number
 from ..core.errors import InputError
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
 from ..data.labels import parse_label
-from ..model.cable_element import CableZone, ElementCableModel
+from ..model.cable_element import ElementCableModel
+from ..model.cable_zones import CableZone
 from ..model.damper import Damper
 from ..model.fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
 from ..model.hysteresis import law_for
@@ -115,7 +116,7 @@ class SlipLaw:
     the grid reaches (continuation from line to line).
 
     A zoned cable (``docs/virtual_bench.md``, "Zoned cables"): ``zones``, boundary zones at the clamp
-    and/or the mass with laws of their own (:class:`sbcal.model.cable_element.CableZone`, any family,
+    and/or the mass with laws of their own (:class:`sbcal.model.cable_zones.CableZone`, any family,
     fixed values), or ``law`` a fitted model's zoned family (``"iwan5_zoned"``: the family's scaled
     versions in zones of :class:`sbcal.model.zones.ZonedLaw`, its parameters in ``params``).
 
@@ -255,7 +256,7 @@ def parse_effect(spec: str):
     of ``lognormal_iwan`` (default), ``dahl``, ``iwan``; the other keys the law's parameters),
     ``fixture_resonance=f:23,m:0.05,eta:0.03``; they return a :class:`SlipLaw` /
     :class:`FixtureResonance`. A zoned cable's boundary zones are the keys ``clamp`` and ``mass``,
-    each ``[FAMILY/]LENGTH[/KEY=VALUE...]`` (:class:`sbcal.model.cable_element.CableZone`: the family
+    each ``[FAMILY/]LENGTH[/KEY=VALUE...]`` (:class:`sbcal.model.cable_zones.CableZone`: the family
     defaults to the middle's, LENGTH is a fraction of the arm, KEY a parameter of the zone's law or
     ``EJ_min_ratio``, ``delta_EJ_ratio``, ``chi_ratio``):
     ``strand_slip=law:iwan5,chi_macro:0.01,clamp:dahl/0.2/chi_dahl=0.03/delta_EJ_ratio=2/EJ_min_ratio=1.5,mass:0.1/chi_ratio=2``.
