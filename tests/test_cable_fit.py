@@ -32,6 +32,9 @@ def test_a_tail_is_compared_only_where_every_state_has_two_tests():
     assert compared_laws(FITTED_LAWS, ["1-1", "2-2"]) == ("bouc_wen", "iwan5", "iwan_tail")
     assert compared_laws(FITTED_LAWS, ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ("bouc_wen", "iwan5")
     assert compared_laws(FITTED_LAWS, ["1-1"]) == ("bouc_wen", "iwan5")
+    # a zoned law too: at one amplitude its zones trade with the middle's law
+    assert compared_laws(("iwan5_zoned", "bouc_wen_zoned"), ["0.5-0.5", "1-1", "2-2"]) == ("iwan5_zoned", "bouc_wen_zoned")
+    assert compared_laws(("iwan5_zoned",), ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ()
 
 
 def _fake_fit(law, pointwise, converged):

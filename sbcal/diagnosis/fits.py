@@ -213,7 +213,7 @@ def _zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | Non
     partial = any(qualifier(predictive_check(f["like"].likes, f["mu_mean"], f["mu_var"], config.alpha, f["n_params"]),
                             config.global_alpha) == "partial" for f in kept.values())
     law = zoned_candidate(comparison, partial)
-    if law is None:
+    if law is None or not compared_laws((law,), [t for f in kept.values() for t in f["tests"]]):
         return None, None
     starts = {state: zoned_start({n: float(np.median(v)) for n, v in f["params"].items()}, f["like"].prior)
               for (_, state), f in kept.items()}

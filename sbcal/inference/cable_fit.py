@@ -517,7 +517,7 @@ def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, pri
     if default:
         partial = any(_remainder(f)[0]["qualifier"] == "partial" for f in fits[comparison["best"]].values())
         law = zoned_candidate(comparison, partial)
-        if law is not None:
+        if law is not None and compared_laws((law,), tests):
             fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[comparison["best"]].items()})
             comparison = compare_families(fits)
     return fits, comparison

@@ -87,7 +87,9 @@ class ZonedLaw(HysteresisLaw):
 
     @property
     def min_tests(self) -> int:
-        return self.base.min_tests
+        """Two tests a cable state at least (as ``iwan_tail``'s tail): at one amplitude the zones trade with
+        the middle's law, and the family is compared on all of a damper's states or on none."""
+        return max(2, self.base.min_tests)
 
     def _rigidity(self, chi, **p):
         return self.base._rigidity(chi, **{k: p[k] for k in self.base.parameter_names})
