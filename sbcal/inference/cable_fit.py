@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from functools import cached_property
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -258,6 +259,15 @@ class CableFit:
     def median(self) -> dict:
         return {n: float(np.median(v)) for n, v in self.result.draws.items()}
 
+    @cached_property
+    def curves(self) -> tuple[list, list]:
+        """Posterior mean and variance of the model curves per test (:func:`sbcal.inference.checks.curve_moments`
+        of every draw), made once: ``sbcal cable`` judges the best family with them and stores them."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            moments = [curve_moments(mu) for mu in self.like.predict(self.result.flat())]
+        return [m[0] for m in moments], [m[1] for m in moments]
+
 
 def cable_seed(seed, damper: str, state: str, law: str, effects=()) -> np.random.SeedSequence:
     """The stream of one cable fit, keyed by what it is (:func:`sbcal.core.seeds.job_seed`): ``sbcal cable``,
@@ -398,12 +408,7 @@ def _remainder(fit: CableFit, curves=None) -> tuple[dict, dict]:
     per calibrated amplitude the spread beyond the noise (zero when ``complete``), which ``sbcal predict``
     adds to its bands (:func:`sbcal.design.predict.model_error_of`)."""
     like = fit.like
-    if curves is None:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            moments = [curve_moments(mu) for mu in like.predict(fit.result.flat())]
-        curves = [m[0] for m in moments], [m[1] for m in moments]
-    mean, var = curves
+    mean, var = fit.curves if curves is None else curves
     check = predictive_check(like.likes, mean, var, ALPHA, like.prior.ndim)
     word = qualifier(check, GLOBAL_ALPHA)
     remainder = {"qualifier": word, "rms_z": check.rms_z, "lines_off": check.lines_off, "n_lines": check.n_lines,
