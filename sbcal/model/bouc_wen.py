@@ -56,6 +56,16 @@ class DahlLaw(HysteresisLaw):
         im = np.where(small, series, (a_safe - np.tanh(a_safe)) / a_safe**2) * 4 / np.pi
         return delta_EJ * (re + 1j * im)
 
+    def _branch(self, chi, chi_a, *, delta_EJ, chi_dahl):
+        """Closed form: ``eta = -1 + (1 + tanh a) exp(-(chi_a - chi) / chi_dahl)`` (Bouc-Wen, ``n = 1``)."""
+        eta_a = np.tanh(chi_a / chi_dahl)
+        decay = np.exp(-np.maximum(chi_a - chi, 0.0) / chi_dahl)
+        rise = (1.0 + eta_a) * decay  # 1 + eta
+        return delta_EJ * chi_dahl * (rise - 1.0), delta_EJ * rise, -delta_EJ * rise * eta_a
+
+    def _periodic(self, chi, *, delta_EJ, chi_dahl):
+        return _bw_periodic(chi, delta_EJ, chi_dahl, np.ones_like(chi_dahl))
+
     def steady_loop(self, chi_a, theta, *, delta_EJ, chi_dahl):
         """Time-steps the Dahl ODE, exactly per step (on a monotone step it is linear in eta).
 
@@ -191,6 +201,138 @@ def _bouc_wen_harmonics(n: float, a) -> np.ndarray:
     return 2.0 * (re - 1j * im) / (np.pi * a**2)
 
 
+_BW_NEAR = 0.9  # beyond this z^n the falling arc's logarithmic end is taken apart (scipy's hyp2f1 loses digits)
+_BW_END_NODES = np.polynomial.legendre.leggauss(20)
+
+
+def _bw_arc(eta, n, sign):
+    """``int_0^eta dz / (1 + sign z^n)``, ``0 <= eta < 1``: the arc length (in ``chi / chi_slip``) over
+    which the Bouc-Wen state runs from 0 to ``+eta`` (sign +1) or ``-eta`` (sign -1) while unloading.
+
+    Gauss's hypergeometric function, except near ``z^n = 1`` on the falling side (``c - a - b = 0``:
+    logarithmic), where with ``y = eta^n``, ``c = 1/n - 1``::
+
+        n A = -ln(1 - y) - psi(1/n) - gamma - int_y^1 (w^c - 1) / (1 - w) dw
+
+    the last integrand smooth (Gauss-Legendre).
+    """
+    eta, n = np.broadcast_arrays(np.minimum(np.asarray(eta, dtype=float), 1.0 - 2.0**-53), np.asarray(n, dtype=float))
+    y = eta**n
+    near = (sign < 0) & (y > _BW_NEAR)
+    out = eta * special.hyp2f1(1.0, 1.0 / n, 1.0 + 1.0 / n, -sign * np.where(near, 0.0, y))
+    if near.any():
+        yn, nn = y[near], n[near]
+        x, w = _BW_END_NODES
+        t = yn[:, None] + (1.0 - yn[:, None]) * 0.5 * (x + 1.0)[None, :]
+        c = 1.0 / nn[:, None] - 1.0
+        g = np.where(t < 1.0, np.expm1(c * np.log(t)) / np.maximum(1.0 - t, 1e-300), -c)
+        tail = 0.5 * (1.0 - yn) * (g * w[None, :]).sum(axis=1)
+        log_gap = -np.log(-np.expm1(nn * np.log(eta[near])))  # -ln(1 - y)
+        out = np.array(out, dtype=float)
+        out[near] = (log_gap - special.digamma(1.0 / nn) - np.euler_gamma - tail) / nn
+    return out
+
+
+def _bw_arc_inverse(y, n, sign):
+    """``eta`` with ``_bw_arc(eta, n, sign) = y >= 0``: safeguarded Newton, in ``u = -ln(1 - eta)``
+    on the side that diverges (sign -1, where the arc grows like ``u / n``)."""
+    y = np.asarray(y, dtype=float)
+    lo, hi = np.zeros(y.shape), np.full(y.shape, 1.0 if sign > 0 else 60.0)
+    x = np.minimum(y, 0.5 * hi) if sign > 0 else np.log1p(y)
+    for _ in range(100):
+        eta = x if sign > 0 else -np.expm1(-x)
+        g = _bw_arc(eta, n, sign) - y
+        lo, hi = np.where(g < 0, x, lo), np.where(g >= 0, x, hi)
+        if sign > 0:
+            slope = 1.0 / (1.0 + eta**n)
+        else:  # (1 - eta) / (1 - eta^n): 1 / n as eta -> 1
+            d = -np.expm1(n * np.log(np.maximum(eta, 1e-300)))
+            slope = np.where(d > 0, np.exp(-x) / np.maximum(d, 1e-300), 1.0 / n)
+        new = x - g / slope
+        new = np.where((new > lo) & (new < hi), new, 0.5 * (lo + hi))
+        done = np.abs(new - x) <= 1e-15 * np.maximum(1.0, np.abs(x))
+        x = new
+        if done.all():
+            break
+    return x if sign > 0 else -np.expm1(-x)
+
+
+def _bw_branch_eta(x, a, n):
+    """Bouc-Wen state on the unloading branch of the steady loop at amplitude ``a`` (in units of
+    ``chi_slip``), ``x = (chi_a - chi) / chi_slip`` from the turning point; and ``eta_a``.
+
+    The arc from ``eta`` to 0 and on to ``-eta`` spans ``A+(eta) + A-(eta)`` (:func:`_bw_arc`), and the
+    loop is odd, so ``A+(eta_a) + A-(eta_a) = 2 a``; the branch then has ``A(eta) = A+(eta_a) - x``
+    (Gauss's hypergeometric function: exact to rounding, for every exponent in one vectorised call).
+    """
+    lo, hi = np.zeros(a.shape), np.ones(a.shape)
+    eta_a = np.minimum(a, 0.5)
+    for _ in range(200):  # bisection-safeguarded Newton on eta_a in (0, 1)
+        e_n = eta_a**n
+        g = _bw_arc(eta_a, n, 1.0) + _bw_arc(eta_a, n, -1.0) - 2.0 * a
+        lo, hi = np.where(g < 0, eta_a, lo), np.where(g >= 0, eta_a, hi)
+        new = eta_a - g / (1.0 / (1.0 + e_n) + 1.0 / np.maximum(1.0 - e_n, 1e-300))
+        new = np.where((new > lo) & (new < hi), new, 0.5 * (lo + hi))
+        done = np.abs(new - eta_a) <= 1e-16
+        eta_a = new
+        if done.all():
+            break
+    y = _bw_arc(eta_a, n, 1.0) - x
+    eta = np.where(y >= 0, _bw_arc_inverse(np.maximum(y, 0.0), n, 1.0), -_bw_arc_inverse(np.maximum(-y, 0.0), n, -1.0))
+    return eta, eta_a
+
+
+def _bw_signed_arc(eta, n):
+    """Arc from 0 to ``eta`` in either sign while unloading (:func:`_bw_arc`; negative below 0)."""
+    return np.where(eta >= 0, _bw_arc(np.abs(eta), n, 1.0), -_bw_arc(np.abs(eta), n, -1.0))
+
+
+def _bw_signed_inverse(y, n):
+    return np.where(y >= 0, _bw_arc_inverse(np.maximum(y, 0.0), n, 1.0), -_bw_arc_inverse(np.maximum(-y, 0.0), n, -1.0))
+
+
+def _bw_periodic(chi, delta_EJ, chi_slip, n):
+    """Bouc-Wen (and Dahl, ``n = 1``) over one period of any periodic curvature ``chi`` (m, n_t), steady.
+
+    Each step between samples is monotone, so the arc advances exactly: falling, ``A(eta') = A(eta) -
+    |d chi| / chi_slip``; rising, the same for ``-eta`` (:func:`_bw_signed_arc`). The periodic state at
+    the largest sample is the fixed point of the period map, found by Newton from the outer loop's
+    (:func:`_bw_branch_eta`) with the map's exact derivative ``prod A'(eta) / A'(eta')``.
+    """
+    m, nt = chi.shape
+    rows = np.arange(m)
+    start = np.argmax(chi, axis=1)
+    order = (start[:, None] + np.arange(nt + 1)[None, :]) % nt
+    path = chi[rows[:, None], order] / chi_slip
+    n = np.broadcast_to(n, (m, 1))[:, 0]
+    steps = np.diff(path, axis=1)
+    eta0 = _bw_branch_eta(np.zeros(m), 0.5 * (path[:, 0] - path.min(axis=1)), n)[1]
+
+    def sweep(e0):
+        eta, deriv, out = e0.copy(), np.ones(m), np.empty((m, nt))
+        for j in range(nt):
+            d = steps[:, j]
+            s = np.where(d > 0, -1.0, 1.0)  # rising: -eta follows the falling arc
+            new = s * _bw_signed_inverse(_bw_signed_arc(s * eta, n) - np.abs(d), n)
+            slope = lambda e: 1.0 + np.sign(e) * np.abs(e) ** n  # noqa: E731  (1 / A')
+            below = slope(s * eta)
+            deriv *= np.divide(slope(s * new), below, out=np.zeros(m), where=below > 0)  # saturated: 0
+            eta = new
+            out[:, j] = eta
+        return out, deriv
+
+    for _ in range(3):
+        out, deriv = sweep(eta0)
+        gap = out[:, -1] - eta0
+        eta0 = np.clip(eta0 - gap / np.where(deriv < 1.0, deriv - 1.0, -1.0), -1.0, 1.0)
+    out, _ = sweep(eta0)
+    rising = steps > 0  # the step that reached each sample
+    slope = 1.0 - np.where(rising, 1.0, -1.0) * np.sign(out) * np.abs(out) ** n[:, None]
+    back = np.empty_like(order[:, 1:])
+    back[rows[:, None], order[:, 1:]] = np.arange(nt)[None, :]
+    return (delta_EJ * chi_slip * out)[rows[:, None], back], (delta_EJ * slope)[rows[:, None], back]
+
+
 @functools.lru_cache(maxsize=1)
 def _bouc_wen_table():
     """Quintic splines of ``ln Re`` and ``ln Im`` (of ``EJ_slip* / delta_EJ``) over ``(xi, psi)``.
@@ -296,6 +438,17 @@ class BoucWenLaw(HysteresisLaw):
 
     def _rigidity(self, chi, *, delta_EJ, chi_slip, sharpness):
         return delta_EJ * _bouc_wen_rigidity(chi / chi_slip, sharpness)
+
+    def _branch(self, chi, chi_a, *, delta_EJ, chi_slip, sharpness):
+        """The branch from the arc's integral (:func:`_bw_branch_eta`); slopes in closed form:
+        ``dm/dchi = delta_EJ (1 + |eta|^(n-1) eta)``, ``dm/dchi_a = -delta_EJ (1 + |eta|^(n-1) eta) eta_a^n``."""
+        chi, chi_a, delta_EJ, chi_slip, n = np.broadcast_arrays(chi, chi_a, delta_EJ, chi_slip, sharpness)
+        eta, eta_a = _bw_branch_eta((chi_a - chi) / chi_slip, chi_a / chi_slip, n)
+        slope = 1.0 + np.sign(eta) * np.abs(eta) ** n
+        return delta_EJ * chi_slip * eta, delta_EJ * slope, -delta_EJ * slope * eta_a**n
+
+    def _periodic(self, chi, *, delta_EJ, chi_slip, sharpness):
+        return _bw_periodic(chi, delta_EJ, chi_slip, sharpness)
 
     def steady_loop(self, chi_a, theta, *, delta_EJ, chi_slip, sharpness):
         """Time-steps the Bouc-Wen ODE over the unloading half period (DOP853, rtol 1e-13).

@@ -355,7 +355,7 @@ class LognormalIwanLaw(HysteresisLaw):
         """``M_b(chi) = delta_EJ (E[phi; phi < chi] + chi P(phi > chi))`` [N m], chi >= 0."""
         s = log_spread
         z = np.log(np.maximum(chi, 1e-300) / chi_median) / s
-        lower = chi_median * math.exp(0.5 * s * s) * special.ndtr(z - s)
+        lower = chi_median * np.exp(0.5 * s * s) * special.ndtr(z - s)
         return delta_EJ * (lower + chi * special.ndtr(-z))
 
     def steady_loop(self, chi_a, theta, **params):

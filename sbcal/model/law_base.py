@@ -140,6 +140,67 @@ class HysteresisLaw:
     def _rigidity(self, chi, **p):  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def loop_branch(self, chi, chi_a, **params):
+        """Slip moment on the unloading branch of the steady loop between ``+-chi_a``, and its slopes.
+
+        A rate-independent law's moment depends only on the curvature's path: under any periodic,
+        odd curvature with one maximum ``chi_a`` per period (a sine with odd harmonics), it runs this
+        branch while the curvature falls and ``-branch(-chi)`` while it rises, whatever the timing.
+        The multi-harmonic solve (:mod:`sbcal.model.cable_harmonics`) evaluates the law so.
+
+        Parameters
+        ----------
+        chi : array_like
+            Curvature [1/m] in ``[-chi_a, chi_a]``.
+        chi_a : array_like
+            The loop's turning curvature [1/m], > 0.
+        **params : float or array_like
+            The law's parameters, broadcast against ``chi``.
+
+        Returns
+        -------
+        m, dm_dchi, dm_dchi_a : ndarray
+            Slip moment [N m], its slope along the branch [N m^2] and its change with the turning
+            point at fixed ``chi`` [N m^2]; broadcast shape.
+        """
+        p = self._arrays(params)
+        return self._branch(np.asarray(chi, dtype=float), np.asarray(chi_a, dtype=float), **p)
+
+    def _branch(self, chi, chi_a, **p):
+        """Masing's rule on the law's backbone (the laws that have one); other laws override."""
+        backbone = getattr(self, "backbone", None)
+        if backbone is None:  # pragma: no cover - every law of sbcal has one or overrides
+            raise NotImplementedError(f"{self.name}: no steady-loop branch")
+        return _masing_branch(lambda x: backbone(x, **p), chi, chi_a)
+
+    def periodic_moment(self, chi, **params):
+        """Slip moment over one period of any periodic curvature, in its steady state.
+
+        For curvatures with inner loops (several maxima per period), where :meth:`loop_branch` does
+        not apply. ``chi`` holds samples over one period (last axis), monotone between neighbours.
+
+        Parameters
+        ----------
+        chi : ndarray, shape (n, n_t)
+            Curvature samples [1/m] over one period.
+        **params : ndarray, shape (n, 1)
+            The law's parameters.
+
+        Returns
+        -------
+        m, dm_dchi : ndarray, shape (n, n_t)
+            Slip moment [N m] and its slope on the branch it runs [N m^2].
+        """
+        p = self._arrays(params)
+        return self._periodic(np.asarray(chi, dtype=float), **p)
+
+    def _periodic(self, chi, **p):
+        """Masing's rule with Madelung's memory on the backbone (the laws that have one)."""
+        backbone = getattr(self, "backbone", None)
+        if backbone is None:  # pragma: no cover - every law of sbcal has one or overrides
+            raise NotImplementedError(f"{self.name}: no periodic evaluation")
+        return _masing_periodic(lambda x: backbone(x[:, None], **p)[:, 0], chi)
+
     def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:  # pragma: no cover - abstract
         """Slip moment [N m] on the steady loop ``chi = chi_a cos(theta)``, theta in [0, 2 pi).
 
@@ -161,3 +222,76 @@ def _masing_loop(backbone, chi_a, theta):
     top = backbone(np.asarray(chi_a, dtype=float))
     unloading = theta <= np.pi
     return np.where(unloading, top - 2 * backbone((chi_a - chi) / 2), -top + 2 * backbone((chi_a + chi) / 2))
+
+
+_SLOPE_STEP = 1e-7  # relative step of the backbone's slope (Jacobians only: values are exact)
+
+
+def _masing_branch(backbone, chi, chi_a):
+    """:meth:`HysteresisLaw.loop_branch` of a Masing law: ``M = B(chi_a) - 2 B((chi_a - chi) / 2)``.
+
+    The slopes use a forward difference of the backbone (they enter Newton's Jacobian only)."""
+    u = np.maximum(0.5 * (chi_a - chi), 0.0)
+    h = _SLOPE_STEP * (u + 1e-3 * chi_a) + 1e-300
+
+    def slope(x, step):
+        return (backbone(x + step) - backbone(x)) / step
+
+    bu = slope(u, h)
+    m = backbone(chi_a) - 2.0 * backbone(u)
+    return m, bu, slope(chi_a, _SLOPE_STEP * chi_a + 1e-300) - bu
+
+
+def _masing_periodic(backbone, chi):
+    """:meth:`HysteresisLaw.periodic_moment` of a Masing law (parallel Jenkins elements obey it exactly).
+
+    The steady state starts at the period's largest curvature on the outer loop it spans with the
+    smallest. Reversal points are kept on a stack; each branch runs ``M = M_r + 2 B((chi - chi_r) / 2)``
+    (odd ``B``) from the last reversal ``r``; once the curvature passes the reversal before it, the
+    inner loop has closed and both points are dropped (Madelung's rule: the path rejoins the branch it
+    left). Reversals are located at the samples.
+    """
+    n, nt = chi.shape
+    rows = np.arange(n)
+    start = np.argmax(chi, axis=1)
+    order = (start[:, None] + np.arange(nt + 1)[None, :]) % nt
+    path = chi[rows[:, None], order]  # from the largest sample round to it again
+    top, bottom = path[:, 0], chi.min(axis=1)
+
+    def odd(x):
+        return np.sign(x) * backbone(np.abs(x))
+
+    m_top = backbone(0.5 * (top - bottom))  # the outer loop of an odd periodic curvature: M(top) = B(half range)
+    depth = 8
+    sk = np.zeros((n, depth))
+    sm = np.zeros((n, depth))
+    sk[:, 0], sm[:, 0] = bottom, -m_top
+    sk[:, 1], sm[:, 1] = top, m_top
+    level = np.ones(n, dtype=int)
+    m_out, t_out = np.empty((n, nt)), np.empty((n, nt))
+    going_up = np.zeros(n, dtype=bool)
+    prev_k, prev_m = top.copy(), m_top.copy()
+    h = 1e-7 * (top - bottom) + 1e-300
+    for j in range(1, nt + 1):
+        x = path[:, j]
+        up = x > prev_k
+        turn = (up != going_up) & (x != prev_k) & (j > 1)
+        if turn.any():  # the previous sample was a reversal: push it
+            grow = turn & (level < depth - 1)
+            level = np.where(grow, level + 1, level)
+            sk[rows[grow], level[grow]], sm[rows[grow], level[grow]] = prev_k[grow], prev_m[grow]
+        going_up = np.where(x != prev_k, up, going_up)
+        for _ in range(depth):  # pass the reversal before the last: the inner loop closes
+            closed = (level >= 2) & np.where(going_up, x >= sk[rows, level - 1], x <= sk[rows, level - 1])
+            if not closed.any():
+                break
+            level = np.where(closed, level - 2, level)
+        kr, mr = sk[rows, level], sm[rows, level]
+        u = 0.5 * (x - kr)
+        m = mr + 2.0 * odd(u)
+        au = np.abs(u)
+        slope = (backbone(au + h) - backbone(au)) / h
+        m_out[rows, order[:, j] if j < nt else order[:, 0]] = m
+        t_out[rows, order[:, j] if j < nt else order[:, 0]] = slope
+        prev_k, prev_m = x, m
+    return m_out, t_out

@@ -1,0 +1,325 @@
+"""Beyond the first harmonic: the fast cable model's steady periodic response by harmonic balance.
+
+:class:`sbcal.model.cable.CableModel` evaluates each section at the first harmonic of its own curvature
+(a describing function), as if the motion stayed sinusoidal. At large amplitude a slipping cable's
+moment is far from a sine, and the first harmonic of the base force (what the bench measures) moves
+with it. :class:`HarmonicBalance` solves the same statically determinate arms with the odd harmonics
+``1, 3, .., 2 H - 1`` of the loads ``p = (V L, M_tip)`` and of every section's curvature:
+
+- each section: ``EJ_min (1 + i beta_material) chi_h + M_slip[chi]_h = p0_h eta + p1_h`` per harmonic,
+  the slip moment evaluated over one period in time (alternating frequency-time): a rate-independent
+  law under an odd periodic curvature with one maximum ``chi_a`` per period runs its steady loop's
+  branches (:meth:`sbcal.model.law_base.HysteresisLaw.loop_branch`), so every law is exact in time;
+- each arm: ``S_h + N_h c_h - N_h p_h = 0`` with ``N_h`` the node's inertia at ``h omega`` and the
+  clamp's motion only in the first harmonic (``c_h = 0`` beyond it), as the first-harmonic model has.
+
+Newton on all unknowns at once, the sections eliminated per entry (each section's Jacobian is local:
+a ``2H x 2H`` block, with the turning point's own term), from the first-harmonic model's solution. The
+measured quantity is the first harmonic of the base force over the base motion (``f_uu``, as
+:meth:`CableModel.dynamic_stiffness`); the force's harmonic distortion comes with it. The material
+loss stays hysteretic (``i beta_material`` at every harmonic).
+
+A section whose curvature has more than one maximum per period (inner loops: near the arm's point of
+zero moment, where the higher harmonics dominate) is evaluated by the law's periodic operator instead
+(:meth:`sbcal.model.law_base.HysteresisLaw.periodic_moment`: Masing's rule with Madelung's memory,
+or the Bouc-Wen state stepped exactly), its Jacobian without the reversal points' motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.errors import InputError
+from .cable import CableModel
+from .cable_sections import _grid
+from .damper import Damper
+
+
+__all__ = ["DEFAULT_HARMONICS", "DEFAULT_SAMPLES", "HarmonicState", "HarmonicBalance"]
+
+DEFAULT_HARMONICS = 3
+"""Odd harmonics solved (1, 3, 5)."""
+
+DEFAULT_SAMPLES = 128
+"""Time samples per period of the alternating frequency-time evaluation."""
+
+_STEP_CAP = 0.5  # a Newton step moves the loads by at most this fraction of |p| (as the first-harmonic model)
+
+
+@dataclass(frozen=True, eq=False)
+class HarmonicState:
+    """The multi-harmonic steady state per parameter set and line (:class:`HarmonicBalance`).
+
+    Attributes
+    ----------
+    f_uu : ndarray of complex, shape (n_sets, n_freq)
+        First harmonic of the base force over the base motion [N/m] (the bench's dynamic stiffness).
+    force : ndarray of complex, shape (n_sets, n_freq, H)
+        The base force's complex amplitudes [N] at :attr:`orders` (time convention ``exp(+i h omega t)``).
+    distortion : ndarray, shape (n_sets, n_freq)
+        ``sqrt(sum_{h > 1} |F_h|^2) / |F_1|``: the force's harmonic distortion.
+    first_harmonic : ndarray of complex, shape (n_sets, n_freq)
+        The describing-function model's ``f_uu`` (the start), for comparison.
+    converged : ndarray of bool, shape (n_sets, n_freq)
+    single_loop : ndarray of bool, shape (n_sets, n_freq)
+        Every section's curvature has one maximum per period (else some sections ran inner loops,
+        evaluated by :meth:`sbcal.model.law_base.HysteresisLaw.periodic_moment`).
+    residual : ndarray, shape (n_sets, n_freq)
+        Relative size of the last Newton step.
+    orders : tuple of int
+    iterations : int
+    """
+
+    f_uu: np.ndarray
+    force: np.ndarray
+    distortion: np.ndarray
+    first_harmonic: np.ndarray
+    converged: np.ndarray
+    single_loop: np.ndarray
+    residual: np.ndarray
+    orders: tuple
+    iterations: int
+
+
+def _complex_block(z):
+    """Real 2x2 blocks ``[[Re, -Im], [Im, Re]]`` of complex ``z`` (...,) -> (..., 2, 2)."""
+    return np.stack([np.stack([z.real, -z.imag], -1), np.stack([z.imag, z.real], -1)], -2)
+
+
+@dataclass(frozen=True)
+class HarmonicBalance:
+    """The cable model solved with several odd harmonics (module docstring).
+
+    Attributes
+    ----------
+    model : CableModel
+        The model (its law, sections and zone rule).
+    harmonics : int
+        Odd harmonics ``1, 3, .., 2 harmonics - 1``; 1 is the describing function evaluated in time.
+    samples : int
+        Time samples per period (must resolve the highest harmonic several times over).
+    max_iter : int
+    tol : float
+        Converged when the Newton step is below ``tol`` relative to the unknowns.
+    """
+
+    model: CableModel
+    harmonics: int = DEFAULT_HARMONICS
+    samples: int = DEFAULT_SAMPLES
+    max_iter: int = 40
+    tol: float = 1e-9
+
+    def __post_init__(self):
+        if int(self.harmonics) != self.harmonics or self.harmonics < 1:
+            raise InputError(f"harmonics: expected an integer >= 1, got {self.harmonics!r}")
+        if int(self.samples) != self.samples or self.samples < 8 * (2 * self.harmonics - 1):
+            raise InputError(f"samples: expected an integer >= {8 * (2 * self.harmonics - 1)} "
+                             f"(8 per period of the highest harmonic), got {self.samples!r}")
+
+    @property
+    def orders(self) -> tuple:
+        """The harmonic orders solved."""
+        return tuple(range(1, 2 * int(self.harmonics), 2))
+
+    def state(self, damper: Damper, freq_hz, amplitude_mm_pp, **params) -> HarmonicState:
+        """Multi-harmonic steady state at every line (parameters as :meth:`CableModel.state`).
+
+        Parameters
+        ----------
+        damper : Damper
+        freq_hz : array_like, shape (n_freq,)
+        amplitude_mm_pp : float or array_like, shape (n_freq,)
+            Base amplitude [mm peak-to-peak].
+        **params : float or array_like, shape (n_sets,)
+
+        Returns
+        -------
+        HarmonicState
+            NaN for sets outside the law's domain.
+        """
+        model = self.model
+        p, n_sets, in_law = model._parameters(damper, params)
+        f, amp, _ = _grid(freq_hz, amplitude_mm_pp, None)
+        valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
+        valid = np.broadcast_to(valid & in_law, (n_sets,))
+        table = model._table(p, n_sets) if valid.all() else None
+        if table is not None:
+            valid = table.monotone
+        if not valid.all():
+            return self._subset(damper, f, amp, p, n_sets, valid)
+        return self._solve(table, p, n_sets, f, amp)
+
+    def _subset(self, damper, f, amp, p, n_sets, valid):
+        keep, sub = CableModel._valid_subset(p, n_sets, valid)
+        h, nf = len(self.orders), f.size
+        out = dict(f_uu=np.full((n_sets, nf), np.nan + 0j), force=np.full((n_sets, nf, h), np.nan + 0j),
+                   distortion=np.full((n_sets, nf), np.nan), first_harmonic=np.full((n_sets, nf), np.nan + 0j),
+                   converged=np.zeros((n_sets, nf), dtype=bool), single_loop=np.zeros((n_sets, nf), dtype=bool),
+                   residual=np.full((n_sets, nf), np.inf))
+        iterations = 0
+        if keep.size:
+            st = self.state(damper, f, amp, **sub)
+            for k in out:
+                out[k][keep] = getattr(st, k)
+            iterations = st.iterations
+        return HarmonicState(**out, orders=self.orders, iterations=iterations)
+
+    # --- the sections ------------------------------------------------------------------------------
+
+    def _sections(self, p, n_sets, arms):
+        """Per (section, entry): eta, weight, the law's parameters and the linear rigidity, each (Q, b)."""
+        model, law, row = self.model, self.model.law, arms.row
+        lin = (np.broadcast_to(p["EJ_min"], (n_sets,)) * (1 + 1j * np.broadcast_to(p["beta_material"], (n_sets,))))
+        if arms.eta is None:
+            eta, wp = model._rule
+            q = eta.size
+            eta = np.broadcast_to(eta[:, None], (q, row.size))
+            w = np.broadcast_to(wp[4][:, None], (q, row.size))
+            lp = {} if law is None else {k: np.broadcast_to(np.broadcast_to(p[k], (n_sets,))[row][None, :], (q, row.size))
+                                         for k in law.parameter_names}
+            return eta, w, lp, np.broadcast_to(lin[row][None, :], (q, row.size)), law
+        eta, w = arms.eta, arms.weights[4]
+        zone = model._zone_rule(p, n_sets)[2]
+        zones = law.zones({k: p[k] for k in law.parameter_names})
+        lp = {}
+        for k in law.base.parameter_names:
+            per_zone = np.stack([np.broadcast_to(z[2][k], (n_sets,)) for z in zones])  # (3, n_sets)
+            lp[k] = per_zone[zone[:, None], row[None, :]]
+        ratio = np.stack([np.broadcast_to(z[3], (n_sets,)) for z in zones])
+        return eta, w, lp, lin[row][None, :] * ratio[zone[:, None], row[None, :]], law.base
+
+    def _solve(self, table, p, n_sets, f, amp):
+        model, orders = self.model, self.orders
+        h_n, nt = len(orders), int(self.samples)
+        omega, x0 = 2 * np.pi * f, amp / 2 * 1e-3
+        rule = model._zone_rule(p, n_sets) if model.zoned else None
+        arms = [model._arms(p, n_sets, h * omega, x0 if h == 1 else 0.0 * x0, rule) for h in orders]
+        first = model._newton(table, arms[0], model._start(table, arms[0]))
+        p0, p1 = first[0]
+        _, _, _, (kr, ki, _) = model._sums(table, arms[0], p0, p1)
+        eta, w, lp, lin, law = self._sections(p, n_sets, arms[0])
+        q, b = eta.shape
+        # unknowns, real: loads (b, 2 loads, 2H), curvatures (Q, b, 2H); [Re, Im] per harmonic
+        load = np.zeros((b, 2, 2 * h_n))
+        load[:, 0, :2] = np.stack([p0.real, p0.imag], -1)
+        load[:, 1, :2] = np.stack([p1.real, p1.imag], -1)
+        chi = np.zeros((q, b, 2 * h_n))
+        c1 = (kr + 1j * ki) * (p0[None, :] * eta + p1[None, :])
+        chi[:, :, 0], chi[:, :, 1] = c1.real, c1.imag
+        # time basis: a signal is E x, its harmonics (2 / nt) E^T s
+        theta = 2 * np.pi * np.arange(nt) / nt
+        hs = np.repeat(np.asarray(orders, dtype=float), 2)
+        phase = hs[None, :] * theta[:, None]
+        basis = np.where(np.arange(2 * h_n) % 2 == 0, np.cos(phase), -np.sin(phase))  # (nt, 2H)
+        slope = np.where(np.arange(2 * h_n) % 2 == 0, -np.sin(phase), -np.cos(phase)) * hs  # d/dtheta
+        project = 2.0 / nt * basis.T  # (2H, nt)
+        lin_block = _complex_block(lin)  # (Q, b, 2, 2)
+        nmat = np.stack([np.stack([a.n[[0, 1]], a.n[[1, 2]]]) for a in arms])  # (H, 2, 2, b)
+        nc = np.stack([a.nc for a in arms])  # (H, 2, b) complex
+        done = np.zeros(b, dtype=bool)
+        single = np.ones(b, dtype=bool)
+        step, last, damping = np.full(b, np.inf), np.full(b, np.inf), np.ones(b)
+        its = 0
+        for its in range(1, self.max_iter + 1):
+            r_sec, jac, single_now = self._section_terms(chi, load, eta, lp, lin_block, law, basis, slope, project, hs)
+            single &= single_now
+            # arm residual per harmonic: sum_q w (eta, 1) chi_h + nc_h - N_h p_h
+            s0 = np.einsum("qb,qbk->bk", w * eta, chi)
+            s1 = np.einsum("qb,qbk->bk", w, chi)
+            res_arm = np.stack([s0, s1], 1)  # (b, 2, 2H)
+            ncr = np.stack([nc.real, nc.imag], -1).transpose(2, 1, 0, 3).reshape(b, 2, 2 * h_n)
+            res_arm += ncr
+            lh = load.reshape(b, 2, h_n, 2)
+            res_arm -= np.einsum("hacb,bchx->bahx", nmat, lh).reshape(b, 2, 2 * h_n)
+            cinv = np.linalg.inv(jac)  # (Q, b, 2H, 2H)
+            wk = [np.einsum("qb,qbij->bij", w * eta**k, cinv) for k in (2, 1, 0)]
+            big = np.empty((b, 2, 2 * h_n, 2, 2 * h_n))
+            big[:, 0, :, 0], big[:, 0, :, 1], big[:, 1, :, 0], big[:, 1, :, 1] = wk[0], wk[1], wk[1], wk[2]
+            nblock = np.zeros((b, 2, h_n, 2, 2, h_n, 2))  # N acts per harmonic, alike on Re and Im
+            for k in range(h_n):
+                for x in range(2):
+                    nblock[:, :, k, x, :, k, x] = nmat[k].transpose(2, 0, 1)
+            big -= nblock.reshape(b, 2, 2 * h_n, 2, 2 * h_n)
+            cr = np.einsum("qbij,qbj->qbi", cinv, r_sec)
+            rhs = -res_arm + np.stack([np.einsum("qb,qbi->bi", w * eta, cr), np.einsum("qb,qbi->bi", w, cr)], 1)
+            dp = np.linalg.solve(big.reshape(b, 4 * h_n, 4 * h_n), rhs.reshape(b, 4 * h_n)[..., None])[..., 0]
+            dp = dp.reshape(b, 2, 2 * h_n)
+            dm = eta[:, :, None] * dp[None, :, 0] + dp[None, :, 1]
+            dchi = np.einsum("qbij,qbj->qbi", cinv, dm - r_sec)
+            size = np.sqrt((dp**2).sum(axis=(1, 2)) / np.maximum((load**2).sum(axis=(1, 2)), 1e-300))
+            # an entry whose step grew halves its later steps until they shrink again (as the first-harmonic model)
+            damping = np.where(size > last, 0.5 * damping, np.minimum(1.0, 2.0 * damping))
+            last = size
+            lam = np.where(np.isfinite(size), np.minimum(damping, _STEP_CAP / np.maximum(size, 1e-300)), 0.0)
+            lam[done] = 0.0
+            load += lam[:, None, None] * np.nan_to_num(dp)
+            chi += lam[None, :, None] * np.nan_to_num(dchi)
+            step = np.where(done, step, size)
+            done |= (size < self.tol) & (lam == 1.0)
+            if done.all():
+                break
+        lh = load.reshape(b, 2, h_n, 2)
+        pc = lh[..., 0] + 1j * lh[..., 1]  # (b, 2, H)
+        nf = f.size
+        fa, fb, fc = (np.stack([a.force[i] for a in arms], -1) for i in range(3))  # (b, H)
+        force = (fa * pc[:, 0] + fb * pc[:, 1] + fc).reshape(n_sets, nf, 2, h_n).sum(axis=2)
+        force[:, :, 0] += (model._clamp_inertia(p, omega) * x0[None, :]).reshape(-1, nf)
+        f_uu = force[:, :, 0] / x0[None, :]
+        distortion = np.sqrt((np.abs(force[:, :, 1:]) ** 2).sum(axis=-1)) / np.abs(force[:, :, 0])
+        per_line = lambda v, fn: fn(v.reshape(n_sets, nf, 2), axis=-1)  # noqa: E731
+        return HarmonicState(
+            f_uu=f_uu, force=force, distortion=distortion,
+            first_harmonic=model._f_uu(arms[0], first[0], p, n_sets, omega, x0),
+            converged=per_line(done, np.all), single_loop=per_line(single, np.all),
+            residual=per_line(step, np.max), orders=orders, iterations=its)
+
+    @staticmethod
+    def _section_terms(chi, load, eta, lp, lin_block, law, basis, slope, project, hs):
+        """Section residuals ``EJ_lin chi + M_slip[chi] - M`` (Q, b, 2H), their Jacobians (Q, b, 2H, 2H)
+        and whether each entry's sections all have one maximum per period (b,)."""
+        q, b, k2 = chi.shape
+        h_n = k2 // 2
+        # linear part and the moment the loads set: M = p0 eta + p1
+        cz = chi.reshape(q, b, h_n, 2)
+        lin_part = np.einsum("qbij,qbhj->qbhi", lin_block, cz).reshape(q, b, k2)
+        moment = eta[:, :, None] * load[None, :, 0] + load[None, :, 1]
+        jac = np.zeros((q, b, k2, k2))
+        for k in range(h_n):
+            jac[:, :, 2 * k:2 * k + 2, 2 * k:2 * k + 2] = lin_block
+        single = np.ones(b, dtype=bool)
+        if law is None:
+            return lin_part - moment, jac, single
+        kt = chi @ basis.T  # (Q, b, nt)
+        kd = chi @ slope.T
+        nt = basis.shape[0]
+        # the turning point: the largest sample, refined by Newton on d chi / d theta = 0
+        i0 = np.argmax(kt, axis=-1)
+        th = 2 * np.pi * i0 / nt
+        for _ in range(4):
+            ph = hs * th[..., None]
+            even = np.arange(k2) % 2 == 0
+            d1 = (chi * np.where(even, -np.sin(ph), -np.cos(ph)) * hs).sum(-1)
+            d2 = (chi * np.where(even, -np.cos(ph), np.sin(ph)) * hs**2).sum(-1)
+            th = th - np.where(d2 < 0, d1 / np.where(d2 < 0, d2, 1.0), 0.0)
+        ph = hs * th[..., None]
+        star = np.where(np.arange(k2) % 2 == 0, np.cos(ph), -np.sin(ph))  # (Q, b, 2H)
+        chi_a = np.maximum((chi * star).sum(-1), kt.max(axis=-1))
+        # one maximum per period (the slope changes sign twice): the steady loop's branches, with the
+        # turning point's own term in the Jacobian; inner loops: the law's periodic evaluation
+        s = np.sign(kd)
+        inner = (s != np.roll(s, 1, axis=-1)).sum(axis=-1) > 2
+        single = ~inner.any(axis=0)
+        theta = 2 * np.pi * np.arange(nt) / nt
+        falling = np.mod(theta - th[..., None], 2 * np.pi) < np.pi
+        x = np.clip(np.where(falling, kt, -kt), -chi_a[..., None], chi_a[..., None])
+        m, dm, dma = law.loop_branch(x, chi_a[..., None], **{k: v[..., None] for k, v in lp.items()})
+        slip = np.where(falling, m, -m)
+        g = np.where(falling, dma, -dma)
+        if inner.any():
+            slip[inner], dm[inner] = law.periodic_moment(kt[inner], **{k: v[inner][:, None] for k, v in lp.items()})
+            g[inner] = 0.0  # reversal points move with the harmonics: left out of the Jacobian (Newton still converges)
+        jac += np.einsum("it,qbt,tj->qbij", project, dm, basis, optimize=True)
+        jac += (g @ project.T)[..., :, None] * star[..., None, :]
+        return lin_part + slip @ project.T - moment, jac, single
