@@ -30,8 +30,8 @@ def test_branch_is_the_steady_loop(key, scale):
     theta = np.linspace(0.0, np.pi, 17)
     ref = law.steady_loop(a, theta, **p)
     m, dm, dma = law.loop_branch(a * np.cos(theta), a, **p)
-    # the branch is exact: only the reference's own ODE/quadrature error remains (rtol 1e-13)
-    assert np.max(np.abs(m - ref)) <= 1e-9 * np.max(np.abs(ref))
+    # closed forms, Bouc-Wen's arc inverted by a Hermite table (<= 1.3e-9 in eta): 1e-8 of the loop
+    assert np.max(np.abs(m - ref)) <= 1e-8 * np.max(np.abs(ref))
     # the slopes against differences of the branch itself
     chi = a * np.cos(theta[1:-1])
     h = 1e-6 * a
@@ -52,7 +52,7 @@ def test_periodic_operator_on_a_sine_is_the_steady_loop(key):
     m, _ = law.periodic_moment(chi, **{k: np.full((amps.size, 1), v) for k, v in p.items()})
     for i, a in enumerate(amps):
         ref = law.steady_loop(a, theta, **p)
-        assert np.max(np.abs(m[i] - ref)) <= 1e-9 * np.max(np.abs(ref))
+        assert np.max(np.abs(m[i] - ref)) <= 1e-8 * np.max(np.abs(ref))
 
 
 def _stepped(law_key, p, chi, periods=40, sub=400):

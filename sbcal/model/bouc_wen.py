@@ -278,8 +278,7 @@ def _bw_branch_eta(x, a, n):
         if done.all():
             break
     y = _bw_arc(eta_a, n, 1.0) - x
-    eta = np.where(y >= 0, _bw_arc_inverse(np.maximum(y, 0.0), n, 1.0), -_bw_arc_inverse(np.maximum(-y, 0.0), n, -1.0))
-    return eta, eta_a
+    return _bw_signed_inverse(y, n), eta_a
 
 
 def _bw_signed_arc(eta, n):
@@ -287,8 +286,47 @@ def _bw_signed_arc(eta, n):
     return np.where(eta >= 0, _bw_arc(np.abs(eta), n, 1.0), -_bw_arc(np.abs(eta), n, -1.0))
 
 
+_BW_INVERSE_NODES = 6001  # nodes of the tabulated inverse arc, uniform in atanh(eta) over +-_BW_INVERSE_SPAN
+_BW_INVERSE_SPAN = 18.0  # 1 - |eta| ~ 5e-16 at the ends
+_BW_INVERSE_TABLES = 64  # more distinct exponents than this: the exact inverse instead
+
+
+@functools.lru_cache(maxsize=_BW_INVERSE_TABLES)
+def _bw_inverse_table(n: float):
+    """``eta`` against the signed arc ``y = A(eta)`` at nodes uniform in ``atanh(eta)``, with the exact
+    slope ``d eta / dy = 1 + |eta|^(n-1) eta``: a cubic Hermite inverse (nodes crowding geometrically
+    at 0, where ``|eta|^n`` is not smooth)."""
+    near = np.geomspace(1e-10, 0.3, 400)  # |eta|^n is not smooth at 0: nodes crowd there
+    eta = np.unique(np.concatenate([np.tanh(np.linspace(-_BW_INVERSE_SPAN, _BW_INVERSE_SPAN, _BW_INVERSE_NODES)),
+                                    near, -near, [0.0]]))
+    y = _bw_signed_arc(eta, np.full(eta.shape, n))
+    return y, eta, 1.0 + np.sign(eta) * np.abs(eta) ** n
+
+
 def _bw_signed_inverse(y, n):
-    return np.where(y >= 0, _bw_arc_inverse(np.maximum(y, 0.0), n, 1.0), -_bw_arc_inverse(np.maximum(-y, 0.0), n, -1.0))
+    """``eta`` with ``_bw_signed_arc(eta, n) = y``: tabulated per exponent (:func:`_bw_inverse_table`,
+    within ~1e-10) where the exponents are few (a sweep, a posterior median), else exact."""
+    y, n = np.broadcast_arrays(np.asarray(y, dtype=float), np.asarray(n, dtype=float))
+    values = np.unique(n)
+    if values.size > _BW_INVERSE_TABLES:
+        return np.where(y >= 0, _bw_arc_inverse(np.maximum(y, 0.0), n, 1.0),
+                        -_bw_arc_inverse(np.maximum(-y, 0.0), n, -1.0))
+    out = np.empty(y.shape)
+    for value in values:
+        mask = n == value
+        yk, ek, dk = _bw_inverse_table(float(value))
+        v = y[mask]
+        j = np.clip(np.searchsorted(yk, v) - 1, 0, yk.size - 2)
+        h = yk[j + 1] - yk[j]
+        h = np.where(h > 0, h, 1.0)  # nodes that round to one arc length at the saturated ends
+        t = np.clip((v - yk[j]) / h, 0.0, 1.0)
+        t2, t3 = t * t, t * t * t
+        e = ((2 * t3 - 3 * t2 + 1) * ek[j] + (t3 - 2 * t2 + t) * h * dk[j]
+             + (-2 * t3 + 3 * t2) * ek[j + 1] + (t3 - t2) * h * dk[j + 1])
+        # beyond the ends: saturated (the falling end approaches -1 as exp(n y))
+        e = np.where(v < yk[0], -1.0 + (1.0 + ek[0]) * np.exp(value * np.minimum(v - yk[0], 0.0)), e)
+        out[mask] = np.where(v > yk[-1], ek[-1], e)
+    return out
 
 
 def _bw_periodic(chi, delta_EJ, chi_slip, n):
@@ -308,29 +346,40 @@ def _bw_periodic(chi, delta_EJ, chi_slip, n):
     steps = np.diff(path, axis=1)
     eta0 = _bw_branch_eta(np.zeros(m), 0.5 * (path[:, 0] - path.min(axis=1)), n)[1]
 
+    def slope(e):  # 1 / A'
+        return 1.0 + np.sign(e) * np.abs(e) ** n
+
     def sweep(e0):
+        # the state as its arc coordinate y in the current direction s (falling +1: eta = A^-1(y);
+        # rising -1: -eta follows the falling arc), converted only where the direction turns
         eta, deriv, out = e0.copy(), np.ones(m), np.empty((m, nt))
+        mode, y = np.ones(m), _bw_signed_arc(e0, n)
         for j in range(nt):
             d = steps[:, j]
-            s = np.where(d > 0, -1.0, 1.0)  # rising: -eta follows the falling arc
-            new = s * _bw_signed_inverse(_bw_signed_arc(s * eta, n) - np.abs(d), n)
-            slope = lambda e: 1.0 + np.sign(e) * np.abs(e) ** n  # noqa: E731  (1 / A')
+            s = np.where(d > 0, -1.0, np.where(d < 0, 1.0, mode))
+            turn = s != mode
+            if turn.any():
+                y[turn] = _bw_signed_arc(s[turn] * eta[turn], n[turn])
+                mode = s
+            y -= np.abs(d)
+            new = s * _bw_signed_inverse(y, n)
             below = slope(s * eta)
             deriv *= np.divide(slope(s * new), below, out=np.zeros(m), where=below > 0)  # saturated: 0
             eta = new
             out[:, j] = eta
         return out, deriv
 
-    for _ in range(3):
+    for _ in range(8):  # Newton on the period map (a contraction): quadratic from the outer loop's state
         out, deriv = sweep(eta0)
         gap = out[:, -1] - eta0
+        if np.all(np.abs(gap) <= 1e-13):
+            break
         eta0 = np.clip(eta0 - gap / np.where(deriv < 1.0, deriv - 1.0, -1.0), -1.0, 1.0)
-    out, _ = sweep(eta0)
     rising = steps > 0  # the step that reached each sample
-    slope = 1.0 - np.where(rising, 1.0, -1.0) * np.sign(out) * np.abs(out) ** n[:, None]
+    tangent = 1.0 - np.where(rising, 1.0, -1.0) * np.sign(out) * np.abs(out) ** n[:, None]
     back = np.empty_like(order[:, 1:])
     back[rows[:, None], order[:, 1:]] = np.arange(nt)[None, :]
-    return (delta_EJ * chi_slip * out)[rows[:, None], back], (delta_EJ * slope)[rows[:, None], back]
+    return (delta_EJ * chi_slip * out)[rows[:, None], back], (delta_EJ * tangent)[rows[:, None], back]
 
 
 @functools.lru_cache(maxsize=1)

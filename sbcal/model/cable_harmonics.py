@@ -27,7 +27,7 @@ or the Bouc-Wen state stepped exactly), its Jacobian without the reversal points
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -103,6 +103,9 @@ class HarmonicBalance:
     max_iter : int
     tol : float
         Converged when the Newton step is below ``tol`` relative to the unknowns.
+    material_loss : {"hysteretic", "viscous"}
+        ``beta_material`` at harmonic ``h``: ``i beta`` (the frequency-domain models' structural loss,
+        default) or ``i beta h`` (a viscous loss equal at the first harmonic: a time integration's).
     """
 
     model: CableModel
@@ -110,8 +113,11 @@ class HarmonicBalance:
     samples: int = DEFAULT_SAMPLES
     max_iter: int = 40
     tol: float = 1e-9
+    material_loss: str = "hysteretic"
 
     def __post_init__(self):
+        if self.material_loss not in ("hysteretic", "viscous"):
+            raise InputError(f"material_loss: expected 'hysteretic' or 'viscous', got {self.material_loss!r}")
         if int(self.harmonics) != self.harmonics or self.harmonics < 1:
             raise InputError(f"harmonics: expected an integer >= 1, got {self.harmonics!r}")
         if int(self.samples) != self.samples or self.samples < 8 * (2 * self.harmonics - 1):
@@ -190,7 +196,9 @@ class HarmonicBalance:
         ratio = np.stack([np.broadcast_to(z[3], (n_sets,)) for z in zones])
         return eta, w, lp, lin[row][None, :] * ratio[zone[:, None], row[None, :]], law.base
 
-    def _solve(self, table, p, n_sets, f, amp):
+    def _context(self, table, p, n_sets, f, amp):
+        """What Newton needs at these lines (a tuple, :meth:`_newton`), the arms per harmonic, the
+        first-harmonic model's solution and the start made from it (loads, curvatures)."""
         model, orders = self.model, self.orders
         h_n, nt = len(orders), int(self.samples)
         omega, x0 = 2 * np.pi * f, amp / 2 * 1e-3
@@ -201,13 +209,7 @@ class HarmonicBalance:
         _, _, _, (kr, ki, _) = model._sums(table, arms[0], p0, p1)
         eta, w, lp, lin, law = self._sections(p, n_sets, arms[0])
         q, b = eta.shape
-        # unknowns, real: loads (b, 2 loads, 2H), curvatures (Q, b, 2H); [Re, Im] per harmonic
-        load = np.zeros((b, 2, 2 * h_n))
-        load[:, 0, :2] = np.stack([p0.real, p0.imag], -1)
-        load[:, 1, :2] = np.stack([p1.real, p1.imag], -1)
-        chi = np.zeros((q, b, 2 * h_n))
-        c1 = (kr + 1j * ki) * (p0[None, :] * eta + p1[None, :])
-        chi[:, :, 0], chi[:, :, 1] = c1.real, c1.imag
+        load, chi = _start_arrays(p0, p1, kr + 1j * ki, eta, h_n)
         # time basis: a signal is E x, its harmonics (2 / nt) E^T s
         theta = 2 * np.pi * np.arange(nt) / nt
         hs = np.repeat(np.asarray(orders, dtype=float), 2)
@@ -215,9 +217,95 @@ class HarmonicBalance:
         basis = np.where(np.arange(2 * h_n) % 2 == 0, np.cos(phase), -np.sin(phase))  # (nt, 2H)
         slope = np.where(np.arange(2 * h_n) % 2 == 0, -np.sin(phase), -np.cos(phase)) * hs  # d/dtheta
         project = 2.0 / nt * basis.T  # (2H, nt)
-        lin_block = _complex_block(lin)  # (Q, b, 2, 2)
         nmat = np.stack([np.stack([a.n[[0, 1]], a.n[[1, 2]]]) for a in arms])  # (H, 2, 2, b)
         nc = np.stack([a.nc for a in arms])  # (H, 2, b) complex
+        # the material loss per harmonic: hysteretic (i beta at every harmonic) or viscous (i beta h)
+        loss = np.asarray(orders, dtype=float) if self.material_loss == "viscous" else np.ones(h_n)
+        lin_h = lin.real[..., None] + 1j * lin.imag[..., None] * loss
+        ctx = (eta, w, lp, _complex_block(lin_h), law, basis, slope, project, hs, nmat, nc)
+        return ctx, arms, first, (load, chi)
+
+    def _solve(self, table, p, n_sets, f, amp):
+        model, h_n = self.model, len(self.orders)
+        omega, x0 = 2 * np.pi * f, amp / 2 * 1e-3
+        ctx, arms, first, (load, chi) = self._context(table, p, n_sets, f, amp)
+        b = load.shape[0]
+        load, chi, done, step, single, its = self._newton(ctx, load, chi, 1.0)
+        if not done.all():
+            its += self._ramp(ctx, table, arms[0], load, chi, done, step, single)
+        if not done.all():
+            its += self._rescue(p, n_sets, f, amp, load, chi, done, step, single)
+        lh = load.reshape(b, 2, h_n, 2)
+        pc = lh[..., 0] + 1j * lh[..., 1]  # (b, 2, H)
+        nf = f.size
+        fa, fb, fc = (np.stack([a.force[i] for a in arms], -1) for i in range(3))  # (b, H)
+        force = (fa * pc[:, 0] + fb * pc[:, 1] + fc).reshape(n_sets, nf, 2, h_n).sum(axis=2)
+        force[:, :, 0] += (model._clamp_inertia(p, omega) * x0[None, :]).reshape(-1, nf)
+        f_uu = force[:, :, 0] / x0[None, :]
+        distortion = np.sqrt((np.abs(force[:, :, 1:]) ** 2).sum(axis=-1)) / np.abs(force[:, :, 0])
+        per_line = lambda v, fn: fn(v.reshape(n_sets, nf, 2), axis=-1)  # noqa: E731
+        return HarmonicState(
+            f_uu=f_uu, force=force, distortion=distortion,
+            first_harmonic=model._f_uu(arms[0], first[0], p, n_sets, omega, x0),
+            converged=per_line(done, np.all), single_loop=per_line(single, np.all),
+            residual=per_line(step, np.max), orders=self.orders, iterations=its)
+
+    def _ramp(self, ctx, table, arms, load, chi, done, step, single, scales=(0.3, 0.45, 0.6, 0.72, 0.84, 0.92, 1.0)):
+        """Amplitude continuation for the entries whose Newton did not converge from the first-harmonic
+        start (the higher harmonics grow with the amplitude, out of the start's reach): from the
+        first-harmonic model at ``scales[0]`` of the amplitude, each step solved from the last. In place."""
+        idx = np.flatnonzero(~done)
+        sub = _take(ctx, idx)
+        first = replace(arms.take(idx), nc=arms.nc[:, idx] * scales[0])
+        p0, p1 = self.model._newton(table, first, self.model._start(table, first))[0]
+        _, _, _, (kr, ki, _) = self.model._sums(table, first, p0, p1)
+        cl, cc = _start_arrays(p0, p1, kr + 1j * ki, sub[0], len(self.orders))
+        its = 0
+        for scale in scales:
+            cl, cc, cd, cs, csg, ci = self._newton(sub, cl, cc, scale)
+            its += ci
+        ok = idx[cd]
+        load[ok], chi[:, ok], step[ok], single[ok] = cl[cd], cc[:, cd], cs[cd], csg[cd]
+        done[ok] = True
+        return its
+
+    def _rescue(self, p, n_sets, f, amp, load, chi, done, step, single, substeps=8):
+        """Frequency continuation for the lines whose Newton did not converge from the first-harmonic
+        start (near a resonance, where a higher harmonic meets one of the arm's): from the nearest
+        converged line of the same set, in ``substeps`` frequency steps, each solved from the last.
+        Updates the arrays in place (both arms of a line); returns the iterations."""
+        nf = f.size
+        ok = done.reshape(n_sets, nf, 2).all(axis=-1)
+        its = 0
+        for s_, k in zip(*np.nonzero(~ok)):
+            good = np.flatnonzero(ok[s_])
+            if good.size == 0:
+                continue
+            j = good[np.argmin(np.abs(f[good] - f[k]))]
+            ps = {key: (v[s_:s_ + 1] if v.size == n_sets and n_sets > 1 else v) for key, v in p.items()}
+            table = self.model._table(ps, 1)
+            src = (s_ * nf + j) * 2 + np.arange(2)
+            dst = (s_ * nf + k) * 2 + np.arange(2)
+            cl, cc = load[src], chi[:, src]
+            for fk in np.linspace(f[j], f[k], substeps + 1)[1:]:
+                ctx = self._context(table, ps, 1, np.array([fk]), np.array([amp[k]]))[0]
+                cl, cc, cd, cs, csg, ci = self._newton(ctx, cl, cc, 1.0)
+                its += ci
+                if not cd.all():
+                    break
+            if cd.all():
+                load[dst], chi[:, dst] = cl, cc
+                done[dst], step[dst], single[dst] = True, cs, csg
+        return its
+
+    def _newton(self, ctx, load, chi, scale):
+        """Damped Newton on the loads and curvatures from ``(load, chi)``, the base motion scaled by
+        ``scale``; returns them with per-entry done, last step, single-loop flags and iterations."""
+        eta, w, lp, lin_block, law, basis, slope, project, hs, nmat, nc = ctx
+        load, chi = load.copy(), chi.copy()
+        q, b, k2 = chi.shape
+        h_n = k2 // 2
+        nc = nc * scale
         done = np.zeros(b, dtype=bool)
         single = np.ones(b, dtype=bool)
         step, last, damping = np.full(b, np.inf), np.full(b, np.inf), np.ones(b)
@@ -260,20 +348,7 @@ class HarmonicBalance:
             done |= (size < self.tol) & (lam == 1.0)
             if done.all():
                 break
-        lh = load.reshape(b, 2, h_n, 2)
-        pc = lh[..., 0] + 1j * lh[..., 1]  # (b, 2, H)
-        nf = f.size
-        fa, fb, fc = (np.stack([a.force[i] for a in arms], -1) for i in range(3))  # (b, H)
-        force = (fa * pc[:, 0] + fb * pc[:, 1] + fc).reshape(n_sets, nf, 2, h_n).sum(axis=2)
-        force[:, :, 0] += (model._clamp_inertia(p, omega) * x0[None, :]).reshape(-1, nf)
-        f_uu = force[:, :, 0] / x0[None, :]
-        distortion = np.sqrt((np.abs(force[:, :, 1:]) ** 2).sum(axis=-1)) / np.abs(force[:, :, 0])
-        per_line = lambda v, fn: fn(v.reshape(n_sets, nf, 2), axis=-1)  # noqa: E731
-        return HarmonicState(
-            f_uu=f_uu, force=force, distortion=distortion,
-            first_harmonic=model._f_uu(arms[0], first[0], p, n_sets, omega, x0),
-            converged=per_line(done, np.all), single_loop=per_line(single, np.all),
-            residual=per_line(step, np.max), orders=orders, iterations=its)
+        return load, chi, done, step, single, its
 
     @staticmethod
     def _section_terms(chi, load, eta, lp, lin_block, law, basis, slope, project, hs):
@@ -283,11 +358,11 @@ class HarmonicBalance:
         h_n = k2 // 2
         # linear part and the moment the loads set: M = p0 eta + p1
         cz = chi.reshape(q, b, h_n, 2)
-        lin_part = np.einsum("qbij,qbhj->qbhi", lin_block, cz).reshape(q, b, k2)
+        lin_part = np.einsum("qbhij,qbhj->qbhi", lin_block, cz).reshape(q, b, k2)
         moment = eta[:, :, None] * load[None, :, 0] + load[None, :, 1]
         jac = np.zeros((q, b, k2, k2))
         for k in range(h_n):
-            jac[:, :, 2 * k:2 * k + 2, 2 * k:2 * k + 2] = lin_block
+            jac[:, :, 2 * k:2 * k + 2, 2 * k:2 * k + 2] = lin_block[:, :, k]
         single = np.ones(b, dtype=bool)
         if law is None:
             return lin_part - moment, jac, single
@@ -317,9 +392,86 @@ class HarmonicBalance:
         m, dm, dma = law.loop_branch(x, chi_a[..., None], **{k: v[..., None] for k, v in lp.items()})
         slip = np.where(falling, m, -m)
         g = np.where(falling, dma, -dma)
+        fd = None
         if inner.any():
-            slip[inner], dm[inner] = law.periodic_moment(kt[inner], **{k: v[inner][:, None] for k, v in lp.items()})
-            g[inner] = 0.0  # reversal points move with the harmonics: left out of the Jacobian (Newton still converges)
+            # the moment hangs on every reversal point: its Jacobian by differences in each harmonic
+            ci, pi = chi[inner], {k: v[inner][:, None] for k, v in lp.items()}
+            m_in = law.periodic_moment(_with_reversals(ci, hs, nt), **pi)[0][:, ::2]
+            slip[inner], dm[inner], g[inner] = m_in, 0.0, 0.0
+            h = 1e-7 * np.sqrt((ci**2).sum(-1, keepdims=True)) + 1e-300
+            fd = np.empty(ci.shape + (k2,))
+            for j in range(k2):
+                shifted = ci.copy()
+                shifted[:, j] += h[:, 0]
+                mj = law.periodic_moment(_with_reversals(shifted, hs, nt), **pi)[0][:, ::2]
+                fd[:, :, j] = ((mj - m_in) / h) @ project.T
         jac += np.einsum("it,qbt,tj->qbij", project, dm, basis, optimize=True)
         jac += (g @ project.T)[..., :, None] * star[..., None, :]
+        if fd is not None:
+            jac[inner] += fd
         return lin_part + slip @ project.T - moment, jac, single
+
+
+def _with_reversals(chi, hs, nt):
+    """Curvature at twice the samples, every reversal exact: between samples ``j`` and ``j + 1`` the
+    half-way value, or the extremum there when the slope changes sign (Newton on the harmonic series).
+
+    The law's periodic operator then sees the true turning points, so the moment at the samples moves
+    smoothly with the harmonics (reversals at the samples would make it jump as they cross one).
+
+    Parameters
+    ----------
+    chi : ndarray, shape (n, 2H)
+        Curvature harmonics ``[Re, Im]`` per harmonic of ``hs`` (each twice).
+    hs : ndarray, shape (2H,)
+    nt : int
+        Samples per period.
+
+    Returns
+    -------
+    ndarray, shape (n, 2 nt)
+        Samples ``0, 1/2, 1, ..`` of the period; the original samples at the even indices.
+    """
+    even = np.arange(hs.size) % 2 == 0
+
+    def basis(theta, order):
+        ph = hs * theta[..., None]
+        if order == 0:
+            return np.where(even, np.cos(ph), -np.sin(ph))
+        if order == 1:
+            return np.where(even, -np.sin(ph), -np.cos(ph)) * hs
+        return np.where(even, -np.cos(ph), np.sin(ph)) * hs**2
+
+    theta = np.pi * np.arange(2 * nt) / nt
+    out = chi @ basis(theta, 0).T
+    d = chi @ basis(theta[::2], 1).T  # slope at the samples
+    rows, cols = np.nonzero(np.sign(d) != np.sign(np.roll(d, -1, axis=1)))
+    if rows.size:
+        c = chi[rows]
+        lo = theta[2 * cols]
+        t = lo + np.pi / nt
+        for _ in range(5):
+            d1 = (c * basis(t, 1)).sum(-1)
+            d2 = (c * basis(t, 2)).sum(-1)
+            t = np.clip(t - d1 / np.where(d2 != 0, d2, 1.0), lo, lo + 2 * np.pi / nt)
+        out[rows, 2 * cols + 1] = (c * basis(t, 0)).sum(-1)
+    return out
+
+
+def _start_arrays(p0, p1, compliance, eta, h_n):
+    """Newton's unknowns from a first-harmonic solution: loads (b, 2, 2H) and curvatures (Q, b, 2H),
+    ``[Re, Im]`` per harmonic, the higher harmonics 0."""
+    load = np.zeros((p0.size, 2, 2 * h_n))
+    load[:, 0, :2] = np.stack([p0.real, p0.imag], -1)
+    load[:, 1, :2] = np.stack([p1.real, p1.imag], -1)
+    chi = np.zeros((eta.shape[0], p0.size, 2 * h_n))
+    c1 = compliance * (p0[None, :] * eta + p1[None, :])
+    chi[:, :, 0], chi[:, :, 1] = c1.real, c1.imag
+    return load, chi
+
+
+def _take(ctx, idx):
+    """Newton's context (:meth:`HarmonicBalance._context`) for the entries ``idx``."""
+    eta, w, lp, lin_block, law, basis, slope, project, hs, nmat, nc = ctx
+    return (eta[:, idx], w[:, idx], {k: v[:, idx] for k, v in lp.items()}, lin_block[:, idx], law, basis, slope,
+            project, hs, nmat[..., idx], nc[..., idx])
