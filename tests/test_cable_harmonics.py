@@ -67,3 +67,42 @@ def test_bad_settings_are_one_line(damper1):
         HarmonicBalance(CableModel(law=law_for("dahl")), harmonics=0)
     with pytest.raises(InputError, match="samples"):
         HarmonicBalance(CableModel(law=law_for("dahl")), harmonics=3, samples=16)
+
+
+IWAN5 = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_micro=1e-3, chi_macro=0.02, density_exponent=-0.5,
+             macro_ratio=0.1)
+# harmonics per law for 0.5 %: Iwan's loops converge fast in harmonics; Bouc-Wen's (n = 2) slower:
+# at 6 Hz, 2 mm it misses the time integration by 0.48 % with 5, 0.30 % with 7, 0.18 % with 9
+AGAINST_TIME = [("iwan5", IWAN5, 5), ("bouc_wen", BOUC_WEN, 7)]
+
+
+def _against_time(damper, name, params, harmonics, lines):
+    from sbcal.model.cable_time import time_response
+
+    model = CableModel(law=law_for(name))
+    # the time integration's material loss is viscous (exact at the first harmonic): the same here
+    hb = HarmonicBalance(model, harmonics=harmonics, material_loss="viscous").state(damper, lines, 2.0, **params)
+    td = time_response(model, damper, lines, 2.0, steps_per_period=512, **params)
+    assert hb.converged.all() and td.settled.all()
+    return hb, td
+
+
+@pytest.mark.parametrize("name, params, harmonics", AGAINST_TIME)
+def test_against_a_time_integration_near_the_resonances(damper1, name, params, harmonics):
+    """At 2 mm near the first resonance, where the force is most distorted and the first-harmonic model
+    misses the time integration of the same model by up to 12 %, the harmonic balance is within 0.5 %
+    (the time integration at 512 steps per period: 2e-4 of its own, tests/test_cable_time.py)."""
+    lines = np.array([6.0, 8.0, 11.0])
+    hb, td = _against_time(damper1, name, params, harmonics, lines)
+    gap = np.abs(hb.f_uu / td.f_uu - 1)
+    assert np.max(gap) <= 5e-3
+    assert np.max(np.abs(hb.first_harmonic / td.f_uu - 1)) > 4 * np.max(gap)  # what the harmonics buy
+    np.testing.assert_allclose(hb.distortion, td.distortion, atol=0.01, rtol=0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, params, harmonics", AGAINST_TIME)
+def test_against_a_time_integration_over_a_2mm_sweep(damper1, name, params, harmonics):
+    """The issue's check: the worst line of the whole 2 mm sweep within 0.5 %."""
+    hb, td = _against_time(damper1, name, params, harmonics, G)
+    assert np.max(np.abs(hb.f_uu / td.f_uu - 1)) <= 5e-3

@@ -49,7 +49,7 @@ def test_periodic_operator_on_a_sine_is_the_steady_loop(key):
     theta = 2 * np.pi * np.arange(nt) / nt
     amps = np.array([3e-4, 3e-3, 3e-2, 0.3])
     chi = amps[:, None] * np.cos(theta)[None, :]  # samples include the turning points
-    m, _ = law.periodic_moment(chi, **{k: np.full((amps.size, 1), v) for k, v in p.items()})
+    m = law.periodic_moment(chi, **{k: np.full((amps.size, 1), v) for k, v in p.items()})
     for i, a in enumerate(amps):
         ref = law.steady_loop(a, theta, **p)
         assert np.max(np.abs(m[i] - ref)) <= 1e-8 * np.max(np.abs(ref))
@@ -90,7 +90,28 @@ def test_periodic_operator_with_inner_loops(key):
     theta = 2 * np.pi * np.arange(nt) / nt
     chi = 0.02 * (np.cos(theta) + 0.5 * np.cos(3 * theta + 0.4))  # three maxima per period
     assert (np.diff(np.sign(np.diff(chi))) != 0).sum() > 2
-    m, _ = law.periodic_moment(chi[None, :], **{k: np.array([[v]]) for k, v in p.items()})
+    m = law.periodic_moment(chi[None, :], **{k: np.array([[v]]) for k, v in p.items()})
     ref = _stepped(key, p, chi, periods=30 if key != "iwan5" else 3, sub=100)
     # the references' own errors: Euler with 100 sub-steps ~1e-3 of the loop; the population's ~5e-4
     assert np.max(np.abs(m[0] - ref)) <= 2e-3 * np.max(np.abs(ref))
+
+
+@pytest.mark.parametrize("key", ["dahl", "bouc_wen", "bouc_wen_soft", "iwan5", "lognormal_iwan"])
+def test_periodic_derivatives_along_the_path(key):
+    """The forward-mode derivatives (reversal points and the periodic state moving with the path)
+    against central differences of the operator itself."""
+    law, p = _law(key)
+    nt = 96
+    theta = 2 * np.pi * np.arange(nt) / nt
+    chi = 0.02 * (np.cos(theta) + 0.5 * np.cos(3 * theta + 0.4))
+    chi[np.argmax(chi)] *= 1.0  # the samples carry the turning points approximately; fine for a derivative check
+    dirs = np.stack([np.cos(3 * theta), np.sin(theta), np.cos(5 * theta + 1.0)], axis=-1)  # smooth directions
+    kw = {k: np.array([[v]]) for k, v in p.items()}
+    m, dm = law.periodic_moment(chi[None], dirs[None], **kw)
+    h = 1e-7
+    for j in range(dirs.shape[1]):
+        up = law.periodic_moment((chi + h * dirs[:, j])[None], **kw)
+        down = law.periodic_moment((chi - h * dirs[:, j])[None], **kw)
+        fd = (up - down)[0] / (2 * h)
+        # tabulated Bouc-Wen arc: ~1e-9 noise over h = 1e-7 -> 1e-2 of delta_EJ chi_slip per unit
+        assert np.max(np.abs(dm[0, :, j] - fd)) <= 2e-3 * np.max(np.abs(fd)) + 1e-2 * p["delta_EJ"] * 0.01

@@ -63,8 +63,8 @@ class DahlLaw(HysteresisLaw):
         rise = (1.0 + eta_a) * decay  # 1 + eta
         return delta_EJ * chi_dahl * (rise - 1.0), delta_EJ * rise, -delta_EJ * rise * eta_a
 
-    def _periodic(self, chi, *, delta_EJ, chi_dahl):
-        return _bw_periodic(chi, delta_EJ, chi_dahl, np.ones_like(chi_dahl))
+    def _periodic(self, chi, dirs, *, delta_EJ, chi_dahl):
+        return _bw_periodic(chi, dirs, delta_EJ, chi_dahl, np.ones_like(chi_dahl))
 
     def steady_loop(self, chi_a, theta, *, delta_EJ, chi_dahl):
         """Time-steps the Dahl ODE, exactly per step (on a monotone step it is linear in eta).
@@ -329,57 +329,73 @@ def _bw_signed_inverse(y, n):
     return out
 
 
-def _bw_periodic(chi, delta_EJ, chi_slip, n):
-    """Bouc-Wen (and Dahl, ``n = 1``) over one period of any periodic curvature ``chi`` (m, n_t), steady.
+def _bw_periodic(chi, dirs, delta_EJ, chi_slip, n):
+    """Bouc-Wen (and Dahl, ``n = 1``) over one period of any periodic curvature ``chi`` (m, n_t), steady;
+    with derivatives along ``dirs`` (m, n_t, k) (:meth:`HysteresisLaw.periodic_moment`).
 
     Each step between samples is monotone, so the arc advances exactly: falling, ``A(eta') = A(eta) -
-    |d chi| / chi_slip``; rising, the same for ``-eta`` (:func:`_bw_signed_arc`). The periodic state at
-    the largest sample is the fixed point of the period map, found by Newton from the outer loop's
-    (:func:`_bw_branch_eta`) with the map's exact derivative ``prod A'(eta) / A'(eta')``.
+    |d chi| / chi_slip``; rising, the same for ``-eta`` (:func:`_bw_signed_arc`); the state is kept as
+    its arc coordinate and converted only where the direction turns. The periodic state at the largest
+    sample is the fixed point of the period map, by Newton from the outer loop's state
+    (:func:`_bw_branch_eta`) with the map's exact derivative ``prod A'(eta) / A'(eta')``. Derivatives
+    ride along at a fixed start, then the fixed point's own motion is added.
     """
     m, nt = chi.shape
     rows = np.arange(m)
     start = np.argmax(chi, axis=1)
     order = (start[:, None] + np.arange(nt + 1)[None, :]) % nt
     path = chi[rows[:, None], order] / chi_slip
+    dsteps = np.diff(dirs[rows[:, None], order] / chi_slip[..., None], axis=1)
     n = np.broadcast_to(n, (m, 1))[:, 0]
     steps = np.diff(path, axis=1)
     eta0 = _bw_branch_eta(np.zeros(m), 0.5 * (path[:, 0] - path.min(axis=1)), n)[1]
 
-    def slope(e):  # 1 / A'
-        return 1.0 + np.sign(e) * np.abs(e) ** n
+    def slope(e, nn=n):  # d eta / dy on the falling arc (1 / A')
+        return 1.0 + np.sign(e) * np.abs(e) ** nn
 
-    def sweep(e0):
+    def sweep(e0, track=False):
         # the state as its arc coordinate y in the current direction s (falling +1: eta = A^-1(y);
         # rising -1: -eta follows the falling arc), converted only where the direction turns
         eta, deriv, out = e0.copy(), np.ones(m), np.empty((m, nt))
         mode, y = np.ones(m), _bw_signed_arc(e0, n)
+        k = dsteps.shape[2]
+        dy, deta = np.zeros((m, k)), np.zeros((m, k))
+        dout, dstart = (np.empty((m, nt, k)), np.empty((m, nt))) if track else (None, None)
         for j in range(nt):
             d = steps[:, j]
             s = np.where(d > 0, -1.0, np.where(d < 0, 1.0, mode))
             turn = s != mode
             if turn.any():
                 y[turn] = _bw_signed_arc(s[turn] * eta[turn], n[turn])
+                if track:
+                    dy[turn] = (s[turn] / slope(s[turn] * eta[turn], n[turn]))[:, None] * deta[turn]
                 mode = s
-            y -= np.abs(d)
+            y += s * d
             new = s * _bw_signed_inverse(y, n)
-            below = slope(s * eta)
-            deriv *= np.divide(slope(s * new), below, out=np.zeros(m), where=below > 0)  # saturated: 0
+            below, above = slope(s * eta), slope(s * new)
+            deriv *= np.divide(above, below, out=np.zeros(m), where=below > 0)  # saturated: 0
             eta = new
             out[:, j] = eta
-        return out, deriv
+            if track:
+                dy += s[:, None] * dsteps[:, j]
+                deta = (s * above)[:, None] * dy
+                dout[:, j], dstart[:, j] = deta, deriv
+        return out, deriv, dout, dstart
 
     for _ in range(8):  # Newton on the period map (a contraction): quadratic from the outer loop's state
-        out, deriv = sweep(eta0)
+        out, deriv, _, _ = sweep(eta0)
         gap = out[:, -1] - eta0
         if np.all(np.abs(gap) <= 1e-13):
             break
         eta0 = np.clip(eta0 - gap / np.where(deriv < 1.0, deriv - 1.0, -1.0), -1.0, 1.0)
-    rising = steps > 0  # the step that reached each sample
-    tangent = 1.0 - np.where(rising, 1.0, -1.0) * np.sign(out) * np.abs(out) ** n[:, None]
+    out, deriv, dout, dstart = sweep(eta0, track=True)
+    # the periodic start moves with the path: d eta0 = d eta_end (at fixed start) / (1 - d eta_end / d eta0)
+    move = dout[:, -1] / np.where(deriv < 1.0, 1.0 - deriv, 1.0)[:, None]
+    dout = dout + dstart[..., None] * move[:, None, :]
     back = np.empty_like(order[:, 1:])
     back[rows[:, None], order[:, 1:]] = np.arange(nt)[None, :]
-    return (delta_EJ * chi_slip * out)[rows[:, None], back], (delta_EJ * tangent)[rows[:, None], back]
+    scale = delta_EJ * chi_slip
+    return (scale * out)[rows[:, None], back], (scale[..., None] * dout)[rows[:, None], back]
 
 
 @functools.lru_cache(maxsize=1)
@@ -496,8 +512,8 @@ class BoucWenLaw(HysteresisLaw):
         slope = 1.0 + np.sign(eta) * np.abs(eta) ** n
         return delta_EJ * chi_slip * eta, delta_EJ * slope, -delta_EJ * slope * eta_a**n
 
-    def _periodic(self, chi, *, delta_EJ, chi_slip, sharpness):
-        return _bw_periodic(chi, delta_EJ, chi_slip, sharpness)
+    def _periodic(self, chi, dirs, *, delta_EJ, chi_slip, sharpness):
+        return _bw_periodic(chi, dirs, delta_EJ, chi_slip, sharpness)
 
     def steady_loop(self, chi_a, theta, *, delta_EJ, chi_slip, sharpness):
         """Time-steps the Bouc-Wen ODE over the unloading half period (DOP853, rtol 1e-13).

@@ -39,8 +39,8 @@ from .damper import Damper
 
 __all__ = ["DEFAULT_HARMONICS", "DEFAULT_SAMPLES", "HarmonicState", "HarmonicBalance"]
 
-DEFAULT_HARMONICS = 3
-"""Odd harmonics solved (1, 3, 5)."""
+DEFAULT_HARMONICS = 5
+"""Odd harmonics solved (1, 3, .., 9): within 0.2 % of a time integration at 2 mm (docs/cable.md)."""
 
 DEFAULT_SAMPLES = 128
 """Time samples per period of the alternating frequency-time evaluation."""
@@ -392,23 +392,17 @@ class HarmonicBalance:
         m, dm, dma = law.loop_branch(x, chi_a[..., None], **{k: v[..., None] for k, v in lp.items()})
         slip = np.where(falling, m, -m)
         g = np.where(falling, dma, -dma)
-        fd = None
+        inner_jac = None
         if inner.any():
-            # the moment hangs on every reversal point: its Jacobian by differences in each harmonic
-            ci, pi = chi[inner], {k: v[inner][:, None] for k, v in lp.items()}
-            m_in = law.periodic_moment(_with_reversals(ci, hs, nt), **pi)[0][:, ::2]
-            slip[inner], dm[inner], g[inner] = m_in, 0.0, 0.0
-            h = 1e-7 * np.sqrt((ci**2).sum(-1, keepdims=True)) + 1e-300
-            fd = np.empty(ci.shape + (k2,))
-            for j in range(k2):
-                shifted = ci.copy()
-                shifted[:, j] += h[:, 0]
-                mj = law.periodic_moment(_with_reversals(shifted, hs, nt), **pi)[0][:, ::2]
-                fd[:, :, j] = ((mj - m_in) / h) @ project.T
+            # the moment hangs on every reversal point and on the periodic state: derivatives along the path
+            path, dirs = _with_reversals(chi[inner], hs, nt)
+            m_in, dm_in = law.periodic_moment(path, dirs, **{k: v[inner][:, None] for k, v in lp.items()})
+            slip[inner], dm[inner], g[inner] = m_in[:, ::2], 0.0, 0.0
+            inner_jac = np.einsum("it,ntj->nij", project, dm_in[:, ::2])
         jac += np.einsum("it,qbt,tj->qbij", project, dm, basis, optimize=True)
         jac += (g @ project.T)[..., :, None] * star[..., None, :]
-        if fd is not None:
-            jac[inner] += fd
+        if inner_jac is not None:
+            jac[inner] += inner_jac
         return lin_part + slip @ project.T - moment, jac, single
 
 
@@ -429,8 +423,10 @@ def _with_reversals(chi, hs, nt):
 
     Returns
     -------
-    ndarray, shape (n, 2 nt)
+    path : ndarray, shape (n, 2 nt)
         Samples ``0, 1/2, 1, ..`` of the period; the original samples at the even indices.
+    dirs : ndarray, shape (n, 2 nt, 2H)
+        Their derivatives with the harmonic coefficients.
     """
     even = np.arange(hs.size) % 2 == 0
 
@@ -443,7 +439,9 @@ def _with_reversals(chi, hs, nt):
         return np.where(even, -np.cos(ph), np.sin(ph)) * hs**2
 
     theta = np.pi * np.arange(2 * nt) / nt
-    out = chi @ basis(theta, 0).T
+    b0 = basis(theta, 0)
+    out = chi @ b0.T
+    dirs = np.broadcast_to(b0[None], (chi.shape[0],) + b0.shape).copy()
     d = chi @ basis(theta[::2], 1).T  # slope at the samples
     rows, cols = np.nonzero(np.sign(d) != np.sign(np.roll(d, -1, axis=1)))
     if rows.size:
@@ -454,8 +452,10 @@ def _with_reversals(chi, hs, nt):
             d1 = (c * basis(t, 1)).sum(-1)
             d2 = (c * basis(t, 2)).sum(-1)
             t = np.clip(t - d1 / np.where(d2 != 0, d2, 1.0), lo, lo + 2 * np.pi / nt)
-        out[rows, 2 * cols + 1] = (c * basis(t, 0)).sum(-1)
-    return out
+        at = basis(t, 0)
+        out[rows, 2 * cols + 1] = (c * at).sum(-1)
+        dirs[rows, 2 * cols + 1] = at  # at an extremum d chi / d theta = 0: only the coefficients move it
+    return out, dirs
 
 
 def _start_arrays(p0, p1, compliance, eta, h_n):

@@ -173,33 +173,42 @@ class HysteresisLaw:
             raise NotImplementedError(f"{self.name}: no steady-loop branch")
         return _masing_branch(lambda x: backbone(x, **p), chi, chi_a)
 
-    def periodic_moment(self, chi, **params):
+    def periodic_moment(self, chi, directions=None, **params):
         """Slip moment over one period of any periodic curvature, in its steady state.
 
         For curvatures with inner loops (several maxima per period), where :meth:`loop_branch` does
-        not apply. ``chi`` holds samples over one period (last axis), monotone between neighbours.
+        not apply. ``chi`` holds samples over one period (last axis), monotone between neighbours: the
+        samples must include the turning points. The moment at every sample depends on the whole path
+        (its reversal points, the periodic state), so its derivatives come along the path (forward mode).
 
         Parameters
         ----------
         chi : ndarray, shape (n, n_t)
             Curvature samples [1/m] over one period.
+        directions : ndarray, shape (n, n_t, k), optional
+            Derivatives of the samples along ``k`` directions (e.g. a harmonic coefficient each).
         **params : ndarray, shape (n, 1)
             The law's parameters.
 
         Returns
         -------
-        m, dm_dchi : ndarray, shape (n, n_t)
-            Slip moment [N m] and its slope on the branch it runs [N m^2].
+        m : ndarray, shape (n, n_t)
+            Slip moment [N m].
+        dm : ndarray, shape (n, n_t, k)
+            Its derivatives along ``directions`` (returned only with them).
         """
         p = self._arrays(params)
-        return self._periodic(np.asarray(chi, dtype=float), **p)
+        chi = np.asarray(chi, dtype=float)
+        dirs = np.zeros(chi.shape + (0,)) if directions is None else np.asarray(directions, dtype=float)
+        m, dm = self._periodic(chi, dirs, **p)
+        return m if directions is None else (m, dm)
 
-    def _periodic(self, chi, **p):
+    def _periodic(self, chi, dirs, **p):
         """Masing's rule with Madelung's memory on the backbone (the laws that have one)."""
         backbone = getattr(self, "backbone", None)
         if backbone is None:  # pragma: no cover - every law of sbcal has one or overrides
             raise NotImplementedError(f"{self.name}: no periodic evaluation")
-        return _masing_periodic(lambda x: backbone(x[:, None], **p)[:, 0], chi)
+        return _masing_periodic(lambda x: backbone(x[:, None], **p)[:, 0], chi, dirs)
 
     def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:  # pragma: no cover - abstract
         """Slip moment [N m] on the steady loop ``chi = chi_a cos(theta)``, theta in [0, 2 pi).
@@ -242,56 +251,65 @@ def _masing_branch(backbone, chi, chi_a):
     return m, bu, slope(chi_a, _SLOPE_STEP * chi_a + 1e-300) - bu
 
 
-def _masing_periodic(backbone, chi):
+def _masing_periodic(backbone, chi, dirs):
     """:meth:`HysteresisLaw.periodic_moment` of a Masing law (parallel Jenkins elements obey it exactly).
 
     The steady state starts at the period's largest curvature on the outer loop it spans with the
     smallest. Reversal points are kept on a stack; each branch runs ``M = M_r + 2 B((chi - chi_r) / 2)``
     (odd ``B``) from the last reversal ``r``; once the curvature passes the reversal before it, the
     inner loop has closed and both points are dropped (Madelung's rule: the path rejoins the branch it
-    left). Reversals are located at the samples.
+    left). Derivatives ride along: ``dM = dM_r + B'(u) (d chi - d chi_r)`` (``B'`` by a forward
+    difference).
     """
     n, nt = chi.shape
     rows = np.arange(n)
     start = np.argmax(chi, axis=1)
+    low = np.argmin(chi, axis=1)
     order = (start[:, None] + np.arange(nt + 1)[None, :]) % nt
     path = chi[rows[:, None], order]  # from the largest sample round to it again
-    top, bottom = path[:, 0], chi.min(axis=1)
+    dpath = dirs[rows[:, None], order]
+    top, bottom = path[:, 0], chi[rows, low]
+    h = 1e-7 * (top - bottom) + 1e-300
 
     def odd(x):
         return np.sign(x) * backbone(np.abs(x))
 
-    m_top = backbone(0.5 * (top - bottom))  # the outer loop of an odd periodic curvature: M(top) = B(half range)
+    def slope(x):
+        return (backbone(x + h) - backbone(x)) / h
+
+    # the outer loop of an odd periodic curvature: M(top) = B(half range)
+    half = 0.5 * (top - bottom)
+    m_top = backbone(half)
+    dm_top = slope(half)[:, None] * 0.5 * (dpath[:, 0] - dirs[rows, low])
     depth = 8
-    sk = np.zeros((n, depth))
-    sm = np.zeros((n, depth))
-    sk[:, 0], sm[:, 0] = bottom, -m_top
-    sk[:, 1], sm[:, 1] = top, m_top
+    sk, sm = np.zeros((n, depth)), np.zeros((n, depth))
+    dsk, dsm = np.zeros((n, depth) + dirs.shape[2:]), np.zeros((n, depth) + dirs.shape[2:])
+    sk[:, 0], sm[:, 0], dsk[:, 0], dsm[:, 0] = bottom, -m_top, dirs[rows, low], -dm_top
+    sk[:, 1], sm[:, 1], dsk[:, 1], dsm[:, 1] = top, m_top, dpath[:, 0], dm_top
     level = np.ones(n, dtype=int)
-    m_out, t_out = np.empty((n, nt)), np.empty((n, nt))
+    m_out, dm_out = np.empty((n, nt)), np.empty((n, nt) + dirs.shape[2:])
     going_up = np.zeros(n, dtype=bool)
-    prev_k, prev_m = top.copy(), m_top.copy()
-    h = 1e-7 * (top - bottom) + 1e-300
+    prev_k, prev_m, prev_dk, prev_dm = top.copy(), m_top.copy(), dpath[:, 0], dm_top
     for j in range(1, nt + 1):
-        x = path[:, j]
+        x, dx = path[:, j], dpath[:, j]
         up = x > prev_k
         turn = (up != going_up) & (x != prev_k) & (j > 1)
         if turn.any():  # the previous sample was a reversal: push it
-            grow = turn & (level < depth - 1)
-            level = np.where(grow, level + 1, level)
-            sk[rows[grow], level[grow]], sm[rows[grow], level[grow]] = prev_k[grow], prev_m[grow]
+            g = turn & (level < depth - 1)
+            level = np.where(g, level + 1, level)
+            sk[rows[g], level[g]], sm[rows[g], level[g]] = prev_k[g], prev_m[g]
+            dsk[rows[g], level[g]], dsm[rows[g], level[g]] = prev_dk[g], prev_dm[g]
         going_up = np.where(x != prev_k, up, going_up)
         for _ in range(depth):  # pass the reversal before the last: the inner loop closes
             closed = (level >= 2) & np.where(going_up, x >= sk[rows, level - 1], x <= sk[rows, level - 1])
             if not closed.any():
                 break
             level = np.where(closed, level - 2, level)
-        kr, mr = sk[rows, level], sm[rows, level]
+        kr, mr, dkr, dmr = sk[rows, level], sm[rows, level], dsk[rows, level], dsm[rows, level]
         u = 0.5 * (x - kr)
         m = mr + 2.0 * odd(u)
-        au = np.abs(u)
-        slope = (backbone(au + h) - backbone(au)) / h
-        m_out[rows, order[:, j] if j < nt else order[:, 0]] = m
-        t_out[rows, order[:, j] if j < nt else order[:, 0]] = slope
-        prev_k, prev_m = x, m
-    return m_out, t_out
+        dm = dmr + slope(np.abs(u))[:, None] * (dx - dkr)
+        at = order[:, j] if j < nt else order[:, 0]
+        m_out[rows, at], dm_out[rows, at] = m, dm
+        prev_k, prev_m, prev_dk, prev_dm = x, m, dx, dm
+    return m_out, dm_out
