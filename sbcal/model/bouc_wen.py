@@ -265,6 +265,13 @@ def _bw_branch_eta(x, a, n):
     loop is odd, so ``A+(eta_a) + A-(eta_a) = 2 a``; the branch then has ``A(eta) = A+(eta_a) - x``
     (Gauss's hypergeometric function: exact to rounding, for every exponent in one vectorised call).
     """
+    eta_a = _bw_turning(a, n)
+    return _bw_signed_inverse(_bw_arc(eta_a, n, 1.0) - x, n), eta_a
+
+
+def _bw_turning(a, n):
+    """``eta_a`` of the steady loop at amplitude ``a``: ``A+(eta_a) + A-(eta_a) = 2 a`` (:func:`_bw_branch_eta`)."""
+    a, n = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(n, dtype=float))
     lo, hi = np.zeros(a.shape), np.ones(a.shape)
     eta_a = np.minimum(a, 0.5)
     for _ in range(200):  # bisection-safeguarded Newton on eta_a in (0, 1)
@@ -277,8 +284,7 @@ def _bw_branch_eta(x, a, n):
         eta_a = new
         if done.all():
             break
-    y = _bw_arc(eta_a, n, 1.0) - x
-    return _bw_signed_inverse(y, n), eta_a
+    return eta_a
 
 
 def _bw_signed_arc(eta, n):
@@ -307,6 +313,8 @@ def _bw_signed_inverse(y, n):
     """``eta`` with ``_bw_signed_arc(eta, n) = y``: tabulated per exponent (:func:`_bw_inverse_table`,
     within ~1e-10) where the exponents are few (a sweep, a posterior median), else exact."""
     y, n = np.broadcast_arrays(np.asarray(y, dtype=float), np.asarray(n, dtype=float))
+    if n.size and n.flat[0] == n.min() == n.max():  # one exponent (the common case): no masks
+        return _bw_table_inverse(y, float(n.flat[0]))
     values = np.unique(n)
     if values.size > _BW_INVERSE_TABLES:
         return np.where(y >= 0, _bw_arc_inverse(np.maximum(y, 0.0), n, 1.0),
@@ -314,19 +322,23 @@ def _bw_signed_inverse(y, n):
     out = np.empty(y.shape)
     for value in values:
         mask = n == value
-        yk, ek, dk = _bw_inverse_table(float(value))
-        v = y[mask]
-        j = np.clip(np.searchsorted(yk, v) - 1, 0, yk.size - 2)
-        h = yk[j + 1] - yk[j]
-        h = np.where(h > 0, h, 1.0)  # nodes that round to one arc length at the saturated ends
-        t = np.clip((v - yk[j]) / h, 0.0, 1.0)
-        t2, t3 = t * t, t * t * t
-        e = ((2 * t3 - 3 * t2 + 1) * ek[j] + (t3 - 2 * t2 + t) * h * dk[j]
-             + (-2 * t3 + 3 * t2) * ek[j + 1] + (t3 - t2) * h * dk[j + 1])
-        # beyond the ends: saturated (the falling end approaches -1 as exp(n y))
-        e = np.where(v < yk[0], -1.0 + (1.0 + ek[0]) * np.exp(value * np.minimum(v - yk[0], 0.0)), e)
-        out[mask] = np.where(v > yk[-1], ek[-1], e)
+        out[mask] = _bw_table_inverse(y[mask], float(value))
     return out
+
+
+def _bw_table_inverse(v, value):
+    """:func:`_bw_signed_inverse` for one exponent ``value`` (its table)."""
+    yk, ek, dk = _bw_inverse_table(value)
+    j = np.clip(np.searchsorted(yk, v) - 1, 0, yk.size - 2)
+    h = yk[j + 1] - yk[j]
+    h = np.where(h > 0, h, 1.0)  # nodes that round to one arc length at the saturated ends
+    t = np.clip((v - yk[j]) / h, 0.0, 1.0)
+    t2, t3 = t * t, t * t * t
+    e = ((2 * t3 - 3 * t2 + 1) * ek[j] + (t3 - 2 * t2 + t) * h * dk[j]
+         + (-2 * t3 + 3 * t2) * ek[j + 1] + (t3 - t2) * h * dk[j + 1])
+    # beyond the ends: saturated (the falling end approaches -1 as exp(n y))
+    e = np.where(v < yk[0], -1.0 + (1.0 + ek[0]) * np.exp(value * np.minimum(v - yk[0], 0.0)), e)
+    return np.where(v > yk[-1], ek[-1], e)
 
 
 def _bw_periodic(chi, dirs, delta_EJ, chi_slip, n):
@@ -507,8 +519,11 @@ class BoucWenLaw(HysteresisLaw):
     def _branch(self, chi, chi_a, *, delta_EJ, chi_slip, sharpness):
         """The branch from the arc's integral (:func:`_bw_branch_eta`); slopes in closed form:
         ``dm/dchi = delta_EJ (1 + |eta|^(n-1) eta)``, ``dm/dchi_a = -delta_EJ (1 + |eta|^(n-1) eta) eta_a^n``."""
-        chi, chi_a, delta_EJ, chi_slip, n = np.broadcast_arrays(chi, chi_a, delta_EJ, chi_slip, sharpness)
-        eta, eta_a = _bw_branch_eta((chi_a - chi) / chi_slip, chi_a / chi_slip, n)
+        # the turning state once per loop (chi_a and the parameters may broadcast against many chi)
+        eta_a = _bw_turning(chi_a / chi_slip, sharpness)
+        y = _bw_arc(eta_a, sharpness, 1.0) - (chi_a - chi) / chi_slip
+        n = np.broadcast_to(sharpness, y.shape)
+        eta = _bw_signed_inverse(y, n)
         slope = 1.0 + np.sign(eta) * np.abs(eta) ** n
         return delta_EJ * chi_slip * eta, delta_EJ * slope, -delta_EJ * slope * eta_a**n
 
