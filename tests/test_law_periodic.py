@@ -115,3 +115,42 @@ def test_periodic_derivatives_along_the_path(key):
         fd = (up - down)[0] / (2 * h)
         # tabulated Bouc-Wen arc: ~1e-9 noise over h = 1e-7 -> 1e-2 of delta_EJ chi_slip per unit
         assert np.max(np.abs(dm[0, :, j] - fd)) <= 2e-3 * np.max(np.abs(fd)) + 1e-2 * p["delta_EJ"] * 0.01
+
+
+# tmdsimpy (github.com/tmd-lab/tmdsimpy), Iwan4Force.aft: Segalman's four-parameter Iwan element with
+# kt = 2, Fs = 1e-3, chi = -0.5, beta = 0.1, 1e5 sliders, Nt = 4096, run outside the project; force
+# harmonics (cos, sin) at 1, 3, 5 for u = A cos t (a) and u = A cos t + 0.2 A cos(3 t + 0.7) (b), A in
+# units of its macro-slip displacement phi_max = Fs (1 + beta) / (kt (beta + (chi + 1) / (chi + 2))).
+# Its sliders converge to the continuous law as N^-1.5 (to 8e-6, 2.5e-7, 8e-9 of |F1| at 1e3, 1e4, 1e5).
+_TMDSIMPY = {
+    ("a", 0.2): (3.675298376332367e-04, -3.50406203638829e-05, 2.2248011418386898e-06, 6.1182021128675635e-06,
+                 2.3337077484304113e-07, 1.1318475564404616e-06),
+    ("a", 1.0): (9.713974834177223e-04, -3.917660165995533e-04, 2.4874032632158446e-05, 6.840358876152223e-05,
+                 2.6091642727629822e-06, 1.2654446099950251e-05),
+    ("a", 5.0): (5.842690491298535e-04, -1.096944795277674e-03, 3.373997789051777e-04, -3.4525137941280366e-05,
+                 8.315026347568843e-05, 1.0045987965203228e-04),
+    ("b", 0.2): (3.4824792077628485e-04, -5.3539580931039103e-05, 5.477199450007393e-05, -4.558398286030617e-05,
+                 3.3097048348760974e-06, 1.8719801761679833e-06),
+    ("b", 1.0): (7.401466300756363e-04, -6.238151548148955e-04, 1.2296360525062378e-04, -1.0440900222368659e-04,
+                 3.526515507894099e-05, 2.5861523629468106e-05),
+    ("b", 5.0): (2.0388804325373994e-04, -1.2428785479329922e-03, 1.796864692332425e-04, -3.3983998127468763e-04,
+                 1.3840730315145048e-04, -1.3303385404806324e-04),
+}
+
+
+@pytest.mark.parametrize("case, ratio", sorted(_TMDSIMPY))
+def test_iwan_harmonics_against_tmdsimpy(case, ratio):
+    """The same element in sbcal's words (delta_EJ = kt, chi_macro = phi_max, micro_exponent = chi,
+    macro_ratio = beta; the Jenkins elements' slip curvature for its slip displacement): the periodic
+    operator's harmonics equal tmdsimpy's harmonic balance to its sliders' error (within 5e-8 of |F1|)."""
+    kt, fs, chi, beta = 2.0, 1e-3, -0.5, 0.1
+    phi_max = fs * (1 + beta) / (kt * (beta + (chi + 1) / (chi + 2)))
+    params = dict(delta_EJ=kt, chi_macro=phi_max, micro_exponent=chi, macro_ratio=beta)
+    nt = 4096
+    t = 2 * np.pi * np.arange(nt) / nt
+    a = ratio * phi_max
+    u = a * np.cos(t) + (0.2 * a * np.cos(3 * t + 0.7) if case == "b" else 0.0)
+    m = law_for("iwan").periodic_moment(u[None], **{k: np.array([[v]]) for k, v in params.items()})[0]
+    ours = [2 / nt * np.sum(m * f(h * t)) for h in (1, 3, 5) for f in (np.cos, np.sin)]
+    ref = np.array(_TMDSIMPY[(case, ratio)])
+    assert np.max(np.abs(np.array(ours) - ref)) <= 5e-8 * np.hypot(ref[0], ref[1])
