@@ -117,11 +117,12 @@ def test_periodic_derivatives_along_the_path(key):
         assert np.max(np.abs(dm[0, :, j] - fd)) <= 2e-3 * np.max(np.abs(fd)) + 1e-2 * p["delta_EJ"] * 0.01
 
 
-# tmdsimpy (github.com/tmd-lab/tmdsimpy), Iwan4Force.aft: Segalman's four-parameter Iwan element with
+# tmdsimpy (github.com/tmd-lab/tmdsimpy at 17d5fc3), Iwan4Force.aft: Segalman's four-parameter Iwan element with
 # kt = 2, Fs = 1e-3, chi = -0.5, beta = 0.1, 1e5 sliders, Nt = 4096, run outside the project; force
 # harmonics (cos, sin) at 1, 3, 5 for u = A cos t (a) and u = A cos t + 0.2 A cos(3 t + 0.7) (b), A in
 # units of its macro-slip displacement phi_max = Fs (1 + beta) / (kt (beta + (chi + 1) / (chi + 2))).
-# Its sliders converge to the continuous law as N^-1.5 (to 8e-6, 2.5e-7, 8e-9 of |F1| at 1e3, 1e4, 1e5).
+# Its sliders converge to the continuous law as N^-1.5 (to 8e-6, 2.5e-7, 8e-9 of |F1| at 1e3, 1e4, 1e5);
+# both evaluate the same samples (turning points between samples cost both alike, 1e-6 at Nt = 4096).
 _TMDSIMPY = {
     ("a", 0.2): (3.675298376332367e-04, -3.50406203638829e-05, 2.2248011418386898e-06, 6.1182021128675635e-06,
                  2.3337077484304113e-07, 1.1318475564404616e-06),
