@@ -152,6 +152,7 @@ def cmd_cable(args) -> int:
                     zip(d["amplitude_mm_pp"], d["logmag_sd"], d["phase_sd_deg"])))
         print(f"  what the law leaves: {r['qualifier']} (rms z {r['rms_z']:.2f}, {r['lines_off']} of {r['n_lines']} "
               f"lines off); {left}")
+        print(f"  {_distortion_words(s['harmonics'])}")
         print(f"  stored in {out}/")
     if len(fits) > 1:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
@@ -162,3 +163,17 @@ def cmd_cable(args) -> int:
             print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
                   "(a comparison rests on converged posteriors only)")
     return 0
+
+
+def _distortion_words(harmonics: dict) -> str:
+    """One line on a stored fit's predicted force distortion (:func:`sbcal.inference.distortion.predicted_distortion`):
+    the largest and where, and the largest gap of the first-harmonic model the fit used."""
+    big, gap = harmonics["largest"]["distortion"], harmonics["largest"]["gap"]
+    orders = f"harmonics {harmonics['orders'][0]}-{harmonics['orders'][-1]}"
+    if big is None:
+        return f"predicted force distortion ({orders}): no line converged"
+    missed = harmonics["n_not_converged"]
+    return (f"predicted force distortion (posterior median, {orders}): largest {100 * big['value']:.1f} % at "
+            f"{big['test']} {big['freq_hz']:g} Hz ({big['amplitude_mm_pp']:g} mm); the fit's first-harmonic f_uu is off "
+            f"the multi-harmonic one by up to {100 * gap['value']:.1f} % (at {gap['test']} {gap['freq_hz']:g} Hz)"
+            + (f"; {missed} line(s) not converged" if missed else "") + f" [{harmonics['wall_s']:.0f} s]")

@@ -315,9 +315,11 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
                                         final=final, secondary=secondary)
 
     parameters = _parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown else {}
-    curves = _curves(case, fits, base_keys, shown, shown_fits, curve_sd)
+    cables = _cable_fits(damper, shown_fits)
+    curves = _curves(case, fits, base_keys, shown, shown_fits, curve_sd,
+                     harmonics=[fit.harmonics for fit in cables.values()])
     if store is not None and verdict == "strand_slip":
-        _store_cables(damper, shown_fits, store=store, seed=seed, comparison=laws.get("strand_slip"))
+        _store_cables(damper, cables, shown_fits, store=store, seed=seed, comparison=laws.get("strand_slip"))
 
     result = {
         "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict, "qualifier": rem["qualifier"],
@@ -431,10 +433,12 @@ def _what_is_left(verdict, case: _Case, *, base_check, base_mean, bands, ranking
     return rem, disc, sd
 
 
-def _curves(case: _Case, fits, base_keys, shown, shown_fits, sd=None) -> dict:
+def _curves(case: _Case, fits, base_keys, shown, shown_fits, sd=None, harmonics=()) -> dict:
     """Posterior-median model curves per test of the baseline and the shown model (log-magnitude, phase);
     with ``sd`` (per test, ``(2, n_freq)``) the shown model's curves also carry it (``logmag_sd``,
-    ``phase_sd``: the posterior spread with the discrepancy, for the curves' bands)."""
+    ``phase_sd``: the posterior spread with the discrepancy, for the curves' bands); with ``harmonics`` (the
+    shown cable law's per cable state, :func:`sbcal.inference.distortion.predicted_distortion`) they carry
+    per line the predicted force ``distortion``, ``harmonics_gap`` and ``harmonics_converged``."""
     tests, likes = case.tests, case.likes
     out = {}
     _, _, base = _model_curves(fits, base_keys)
@@ -448,13 +452,18 @@ def _curves(case: _Case, fits, base_keys, shown, shown_fits, sd=None) -> dict:
     if shown and sd:
         for t in tests:
             out[shown][t].update(logmag_sd=sd[t][0].tolist(), phase_sd=sd[t][1].tolist())
+    for h in harmonics:
+        for t in h["distortion"]:
+            out[shown][t].update(distortion=h["distortion"][t], harmonics_gap=h["gap"][t],
+                                 harmonics_converged=h["converged"][t])
     out["data"] = {t: {"logmag": lk.ybar[0].tolist(), "phase": lk.ybar[1].tolist()} for t, lk in zip(tests, likes)}
     return out
 
 
 def curves_frame(doc: dict):
     """The fitted curves of a diagnosis (baseline and verdict model, posterior median per line) in the
-    bench CSV columns (``run`` 0) plus ``model``: a DataFrame for ``sbcal diagnose --curves``."""
+    bench CSV columns (``run`` 0) plus ``model`` and ``distortion`` (the cable law's predicted force distortion
+    [1], NaN where it was not computed or did not converge): a DataFrame for ``sbcal diagnose --curves``."""
     import pandas as pd
 
     from ..data.bench import curves_to_frame
@@ -468,15 +477,23 @@ def curves_frame(doc: dict):
             frame = curves_to_frame(doc["damper"], t, c["freq_hz"], np.asarray(c["amplitude_mm_pp"]), fuu[None, :],
                                     runs=[0])
             frame["model"] = model
+            frame["distortion"] = np.array(c.get("distortion", [None] * len(c["freq_hz"])), dtype=float)
             frames.append(frame)
     return pd.concat(frames, ignore_index=True)
 
 
-def _store_cables(damper, fits, *, store, seed, comparison) -> None:
-    """Write the verdict's cable-law posteriors as ``<store>/<damper>/cable-<state>/``."""
-    for (name, state), f in sorted(fits.items()):
-        fit = CableFit(damper=damper.name, state=state, law=f["law"], tests=f["tests"], effects=(),
-                       result=f["result"], like=f["like"], loo=f["loo"])
-        store_cable(fit, cable_dir(store, damper.name, state),
+def _cable_fits(damper, fits) -> dict:
+    """The cable-law fits among a model's ``fits`` (those that carry a ``law``) as :class:`CableFit`, by key."""
+    return {key: CableFit(damper=damper.name, state=key[1], law=f["law"], tests=f["tests"], effects=(),
+                          result=f["result"], like=f["like"], loo=f["loo"])
+            for key, f in sorted(fits.items()) if "law" in f}
+
+
+def _store_cables(damper, cables, fits, *, store, seed, comparison) -> None:
+    """Write the verdict's cable-law posteriors (``cables``: :func:`_cable_fits` of ``fits``, whose predicted
+    distortion the diagnosis's curves made) as ``<store>/<damper>/cable-<state>/``."""
+    for key, fit in cables.items():
+        f = fits[key]
+        store_cable(fit, cable_dir(store, damper.name, fit.state),
                     meta={"seed": seed, "made_by": "sbcal diagnose", "damper_values": asdict(damper)},
                     comparison=comparison, curves=(f["mu_mean"], f["mu_var"]))  # its posterior curves, made once

@@ -33,11 +33,13 @@ from ..core.errors import InputError
 from ..core.seeds import job_seed, seed_key
 from ..data.labels import cable_state, state_tests
 from ..model.cable import DEFAULT_SECTIONS, CableModel
+from ..model.cable_harmonics import HarmonicBalance
 from ..model.damper import Damper
 from ..model.hysteresis import FITTED_LAWS, law_for, zoned
 from ..model.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
 from .calibrate import likelihood_for
 from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, predictive_check, qualifier
+from .distortion import predicted_distortion
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
@@ -118,6 +120,20 @@ class CableForward:
         st = self.model.state(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments,
                               continuation=continuation, **cable)
         return st, self._measured(freq_hz, st.f_uu, chain)
+
+    def harmonic_state(self, damper: Damper, freq_hz, *, harmonics: int, **params):
+        """The same cable solved with ``harmonics`` odd harmonics (:class:`sbcal.model.cable_harmonics.HarmonicBalance`).
+
+        Returns
+        -------
+        state : HarmonicState
+            The cable's multi-harmonic steady state, shapes ``(n, n_lines)``.
+        f_uu, first : ndarray of complex, shape (n, n_lines)
+            Its ``f_uu`` and the first-harmonic model's [N/m], both measured as ``f`` is (with the chain's effects).
+        """
+        cable, chain = self._split(params)
+        st = HarmonicBalance(self.model, harmonics=harmonics).state(damper, freq_hz, self.amplitude_mm_pp, **cable)
+        return st, self._measured(freq_hz, st.f_uu, chain), self._measured(freq_hz, st.first_harmonic, chain)
 
 
 def _prior(law: str, damper: Damper, effects, prior_path=None) -> Prior:
@@ -267,6 +283,13 @@ class CableFit:
             warnings.simplefilter("ignore", RuntimeWarning)
             moments = [curve_moments(mu) for mu in self.like.predict(self.result.flat())]
         return [m[0] for m in moments], [m[1] for m in moments]
+
+    @cached_property
+    def harmonics(self) -> dict:
+        """The base force's distortion the posterior median predicts per line, and how far the first-harmonic
+        model is from the multi-harmonic solve (:func:`sbcal.inference.distortion.predicted_distortion`), made
+        once: :func:`store_cable` stores it and ``sbcal cable`` prints its largest."""
+        return predicted_distortion(self.like, self.median(), self.tests)
 
 
 def cable_seed(seed, damper: str, state: str, law: str, effects=()) -> np.random.SeedSequence:
@@ -422,7 +445,8 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
     The netCDF holds the posterior, the log-probability, the pointwise log-likelihood by run
     (``runs``, dim ``obs`` with ``obs_test``/``obs_run`` coordinates), the lines (frequency, amplitude,
     test) and the run means observed. The summary adds the law, the tests, each test's curvature range
-    and folds, what the fit leaves (``remainder``, ``discrepancy``: :func:`_remainder`), the convergence and
+    and folds, what the fit leaves (``remainder``, ``discrepancy``: :func:`_remainder`), the base force's
+    predicted distortion per line (``harmonics``: :attr:`CableFit.harmonics`), the convergence and
     (with ``comparison``) the family comparison. ``curves``: the posterior mean and variance of the model
     curves per test (``([mean], [var])``, :func:`sbcal.inference.checks.curve_moments` of every draw) when
     the caller has them, else computed here.
@@ -441,6 +465,7 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
         "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
         **dict(zip(("remainder", "discrepancy"), _remainder(fit, curves))),
+        "harmonics": fit.harmonics,
         "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
         "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
     }

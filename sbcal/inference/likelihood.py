@@ -299,10 +299,13 @@ class JointLikelihood:
         self.freq_hz = np.concatenate([lk.freq_hz for lk in self.likes])
         self._split = np.cumsum([lk.freq_hz.size for lk in self.likes])[:-1]
 
+    def model_params(self, params: dict) -> dict:
+        """The forward model's keyword arguments: the prior's model parameters, each ``(n,)``."""
+        return {n: np.atleast_1d(params[n]) for n in self.prior.model_names}
+
     def predict(self, params: dict) -> list:
         """Model curves per test: a list of ``(2, n, n_freq_t)`` (log-magnitude, phase [rad])."""
-        p = {n: np.atleast_1d(params[n]) for n in self.prior.model_names}
-        fuu = self.model(self.damper, self.freq_hz, **p)
+        fuu = self.model(self.damper, self.freq_hz, **self.model_params(params))
         mu = np.stack([np.log(np.abs(fuu)), np.angle(fuu)])
         return np.split(mu, self._split, axis=2)
 

@@ -218,6 +218,51 @@ def _law_figure(cables: dict, path: Path) -> str:
     return _save(fig, path)
 
 
+def _distortion_figure(cables: dict, path: Path) -> str:
+    """The base force's harmonic distortion each cable state's law predicts at its posterior median, per line
+    (the stored ``harmonics`` of ``cable-<state>/summary.json``): one panel a state, one curve a test, gaps
+    where the multi-harmonic solve did not converge."""
+    plt = pyplot()
+    states = sorted(cables)
+    fig, axes = plt.subplots(1, len(states), figsize=(5.5 * len(states), 3.6), squeeze=False)
+    for ax, state in zip(axes[0], states):
+        h = cables[state]["harmonics"]
+        amps = {t: np.asarray(a, float) for t, a in h["amplitude_mm_pp"].items()}
+        top = max(float(a.max()) for a in amps.values())
+        peak = 0.0
+        for t in sorted(amps, key=lambda k: (amps[k].max(), k)):
+            # a test's colour by its largest amplitude, over two decades below the state's largest
+            color = plt.cm.viridis(np.log(amps[t].max() / top) / np.log(1e-2) if top > 0 else 0.0)
+            y = 100 * np.array(h["distortion"][t], dtype=float)
+            peak = max(peak, float(np.nanmax(y, initial=0.0)))
+            ax.plot(h["freq_hz"][t], y, color=color, lw=1.2, marker=".", ms=3,
+                    label=f"{t} ({', '.join(f'{a:g}' for a in np.unique(amps[t]))} mm)")
+        # headroom above the curves for the legend
+        ax.set(xlabel="frequency [Hz]", ylabel="force distortion [%]", ylim=(0, 1.35 * peak or 1.0),
+               title=f"{state} cable ({cables[state]['law']}): harmonics {h['orders'][0]}-{h['orders'][-1]}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, ncol=4, loc="upper center")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _has_harmonics(summary: dict, where: Path) -> bool:
+    """Whether a cable summary holds the predicted distortion the report draws (a store written before it
+    was computed has none); one line naming ``where`` when it is not as ``store_cable`` writes it."""
+    h = summary.get("harmonics")
+    if h is None:
+        return False
+    try:
+        ok = (bool(h["orders"]) and {"distortion", "gap"} <= set(h["largest"]) and all(
+            len(h["freq_hz"][t]) == len(h["amplitude_mm_pp"][t]) == len(v) > 0 for t, v in h["distortion"].items()))
+    except (KeyError, TypeError, AttributeError):
+        ok = False
+    if not ok:
+        raise InputError(f"{where}: key 'harmonics': expected orders, largest and per test freq_hz, amplitude_mm_pp "
+                         "and distortion of one length (as sbcal cable writes it)")
+    return True
+
+
 def _curves_figure(doc, path: Path) -> str:
     """Each test's run means with the per-test model's and the verdict model's fitted curves (the latter's
     90 % band holds the posterior's spread and, for a ``partial`` verdict, the model discrepancy)."""
@@ -277,12 +322,16 @@ def _diagnosis(path: Path, figs: Path):
             doc["curves_figure"] = _curves_figure(doc, figs / f"{doc['damper']}_curves.png")
     except (ValueError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a diagnosis written by sbcal diagnose ({e})") from None
-    cables = {}
+    cables, distorted = {}, {}
     for state, d in cable_dirs(*owner(path)):
         cables[state] = read_cable(d)
+        if _has_harmonics(cables[state][0], d / "summary.json"):
+            distorted[state] = cables[state][0]
     if cables:
         doc["law_figure"] = _law_figure(cables, figs / f"{doc['damper']}_law.png")
         doc["cables"] = {state: s for state, (s, _) in cables.items()}
+        if distorted:
+            doc["distortion_figure"] = _distortion_figure(distorted, figs / f"{doc['damper']}_distortion.png")
     return doc
 
 
