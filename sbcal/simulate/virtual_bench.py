@@ -30,6 +30,10 @@ split into Hermite elements, each with ``EJ*_e = EJ_min (1 + i beta_material) + 
 from a hysteresis law of :mod:`sbcal.model.hysteresis`: by default the bench's own lognormal Iwan law,
 outside both fitted families), driven at ``X0 = amplitude_mm_pp / 2 * 1e-3`` m and followed up the
 frequency grid as a stepped-sine controller does (``docs/virtual_bench.md``, ``docs/cable.md``).
+With ``time_domain`` (``strand_slip=...,time:1``) the cable is instead the fast model
+(:class:`sbcal.model.cable.CableModel`, :data:`BENCH_SECTIONS` sections per arm) integrated in time from
+rest, and the reading is the first harmonic of its distorted force over whole periods once settled, as
+a shaker's acquisition measures it (:func:`sbcal.model.cable_time.time_response`).
 """
 
 from __future__ import annotations
@@ -44,7 +48,9 @@ from ..core._io import finite_number
 from ..core.errors import InputError
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
 from ..data.labels import parse_label
+from ..model.cable import CableModel
 from ..model.cable_element import ElementCableModel
+from ..model.cable_time import DEFAULT_STEPS_PER_PERIOD, time_response
 from ..model.cable_zones import CableZone
 from ..model.damper import Damper
 from ..model.fem import PARAMETER_NAMES, STANDARD_GRID_HZ, arm_impedance
@@ -57,6 +63,8 @@ __all__ = [
     "EXTRA_EFFECTS",
     "DEFAULT_TESTS",
     "BENCH_ELEMENTS",
+    "BENCH_SECTIONS",
+    "BENCH_ZONE_SECTIONS",
     "SlipLaw",
     "CableZone",
     "FixtureResonance",
@@ -99,6 +107,21 @@ _LAW_DEFAULTS = {"dahl": {}, "iwan": {"micro_exponent": -0.5, "macro_ratio": 0.0
 _ZONE_RATIOS = ("EJ_min_ratio", "delta_EJ_ratio", "chi_ratio")
 BENCH_ELEMENTS = 12
 """Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.model.cable_element.DEFAULT_N_ELEMENTS`)."""
+BENCH_SECTIONS = 16
+"""Gauss sections per arm of the time-domain bench's cable (:class:`sbcal.model.cable.CableModel`; a zoned
+law's middle), richer than the fit's :data:`sbcal.model.cable.DEFAULT_SECTIONS`."""
+BENCH_ZONE_SECTIONS = 8
+"""Gauss sections of each boundary zone of the time-domain bench's zoned law (the fit's default: 3)."""
+_HARMONICS = 9  # the force's harmonics the time-domain bench analyses (time_response's default)
+# effects the time-domain bench refuses, and why: the fast cable has one loss factor and one EJ_min for
+# both arms, constant in frequency (a distorted force has harmonics at other frequencies than the line's)
+_TIME_REFUSED = {
+    "asymmetric_damping": "per-arm loss factors",
+    "beta1": "per-arm loss factors",
+    "beta2": "per-arm loss factors",
+    "viscous_damping": "a loss factor that depends on the frequency",
+    "frequency_dependent_stiffness": "a rigidity that depends on the frequency",
+}
 
 
 def _family(law: str) -> str:
@@ -114,6 +137,12 @@ class SlipLaw:
     each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``; ``EJ_min`` is the bench's ``EJ``
     parameter and ``beta_material`` its ``beta``. Each run follows the branch a stepped-sine sweep up
     the grid reaches (continuation from line to line).
+
+    Time domain (``time_domain``; ``docs/virtual_bench.md``, "Time domain"): the cable is instead
+    :class:`sbcal.model.cable.CableModel` with :data:`BENCH_SECTIONS` Gauss sections per arm
+    (:data:`BENCH_ZONE_SECTIONS` per boundary zone of a ``_zoned`` law), integrated from rest with a ramp
+    at every line on its own (:func:`sbcal.model.cable_time.time_response`); the reading is the first
+    harmonic of the distorted force. It takes neither ``elements`` nor ``zones``.
 
     A zoned cable (``docs/virtual_bench.md``, "Zoned cables"): ``zones``, boundary zones at the clamp
     and/or the mass with laws of their own (:class:`sbcal.model.cable_zones.CableZone`, any family,
@@ -141,12 +170,19 @@ class SlipLaw:
         Boundary zones with laws of their own (at most one per end); ``law`` is the middle's. A zone
         of another family than the middle's gets that family's defaults above and needs its curvature
         scale; its ``delta_EJ`` defaults to the middle's times its ``delta_EJ_ratio``.
+    time_domain : bool
+        Integrate the fast cable in time and read the first harmonic (above) instead of the element
+        model's describing-function steady state.
+    steps_per_period : int
+        Time steps per period of every line (time domain only; more than twice the 9 harmonics analysed).
     """
 
     law: str = "lognormal_iwan"
     params: tuple = ()
     elements: int = BENCH_ELEMENTS
     zones: tuple = ()
+    time_domain: bool = False
+    steps_per_period: int = DEFAULT_STEPS_PER_PERIOD
 
     def __post_init__(self):
         family = _family(str(self.law))
@@ -174,6 +210,7 @@ class SlipLaw:
         if int(self.elements) != self.elements or self.elements < 1:
             raise InputError(f"strand_slip: elements must be an integer >= 1, got {self.elements!r}")
         zones = tuple(self.zones or ())
+        self._check_time_domain(zones)
         if zones and zoned:
             raise InputError(f"strand_slip: the {self.law} law has its zones in its parameters; "
                              f"give zones with its family ({family})")
@@ -186,6 +223,32 @@ class SlipLaw:
                 ElementCableModel(model, n_elements=self.elements, zones=zones)  # checks the zones against the middle
             except InputError as e:
                 raise InputError(f"strand_slip: {e}") from None
+
+    def _check_time_domain(self, zones: tuple):
+        """The time-domain fields: given only with ``time_domain``, which takes no element-model fields."""
+        if not isinstance(self.time_domain, (bool, np.bool_)):
+            raise InputError(f"strand_slip: time_domain must be True or False, got {self.time_domain!r}")
+        steps = self.steps_per_period
+        try:
+            whole = not isinstance(steps, (bool, np.bool_)) and int(steps) == steps
+        except (TypeError, ValueError, OverflowError):
+            whole = False
+        if not whole or steps <= 2 * _HARMONICS:
+            raise InputError(f"strand_slip: steps_per_period must be an integer > {2 * _HARMONICS} "
+                             f"(twice the {_HARMONICS} harmonics analysed), got {steps!r}")
+        object.__setattr__(self, "steps_per_period", int(steps))
+        object.__setattr__(self, "time_domain", bool(self.time_domain))
+        if not self.time_domain:
+            if self.steps_per_period != DEFAULT_STEPS_PER_PERIOD:
+                raise InputError("strand_slip: steps_per_period is the time-domain bench's; add time:1")
+            return
+        if self.elements != BENCH_ELEMENTS:
+            raise InputError(f"strand_slip: the time-domain bench does not take elements (it integrates the fast "
+                             f"model, {BENCH_SECTIONS} Gauss sections per arm)")
+        if zones:
+            raise InputError(f"strand_slip: the time-domain bench does not take clamp/mass zones (the element "
+                             f"model's); give a zoned law, e.g. law:{_family(self.law)}{ZONED_SUFFIX} with "
+                             "clamp_zone, mass_zone and their ratios")
 
     def _zone_defaults(self, zone) -> CableZone:
         if not isinstance(zone, CableZone):
@@ -260,6 +323,8 @@ def parse_effect(spec: str):
     defaults to the middle's, LENGTH is a fraction of the arm, KEY a parameter of the zone's law or
     ``EJ_min_ratio``, ``delta_EJ_ratio``, ``chi_ratio``):
     ``strand_slip=law:iwan5,chi_macro:0.01,clamp:dahl/0.2/chi_dahl=0.03/delta_EJ_ratio=2/EJ_min_ratio=1.5,mass:0.1/chi_ratio=2``.
+    ``time:1`` switches the time-domain bench on (``time:0``, the default, off), ``steps_per_period:N``
+    sets its steps (:class:`SlipLaw`): ``strand_slip=law:iwan5_zoned,chi_macro:0.02,clamp_zone:0.2,mass_zone:0.1,time:1``.
 
     Raises
     ------
@@ -303,25 +368,35 @@ def parse_effect(spec: str):
 
 def _parse_slip(spec: str, value: str) -> SlipLaw:
     """``CHI`` (the default law's curvature scale) or ``law:NAME,elements:N,PARAM:VALUE,...`` with
-    optional zones ``clamp:[FAMILY/]LENGTH[/KEY=VALUE...]`` and ``mass:...``."""
+    optional zones ``clamp:[FAMILY/]LENGTH[/KEY=VALUE...]`` and ``mass:...``, and the time domain's
+    ``time:0|1`` and ``steps_per_period:N``."""
     try:
         if ":" not in value:
             return SlipLaw(params=((_LAW_SCALE[SlipLaw.law], finite_number(value, f"effect {spec!r}")),))
         law, elements, params, zones = SlipLaw.law, BENCH_ELEMENTS, {}, []
+        time_domain, steps = False, DEFAULT_STEPS_PER_PERIOD
         for item in value.split(","):
             key, colon, text = (t.strip() for t in item.partition(":"))
             if not colon or not key:
                 raise InputError(f"effect {spec!r}: expected key:value pairs (law:NAME, elements:N, law parameters, "
-                                 "clamp:ZONE, mass:ZONE)")
+                                 "clamp:ZONE, mass:ZONE, time:0|1, steps_per_period:N)")
             if key == "law":
                 law = text
             elif key == "elements":
                 elements = finite_number(text, f"effect {spec!r}")
             elif key in ("clamp", "mass"):
                 zones.append(_parse_zone(spec, key, text))
+            elif key == "time":
+                flag = finite_number(text, f"effect {spec!r}: time")
+                if flag not in (0, 1):
+                    raise InputError(f"effect {spec!r}: time must be 0 or 1, got {text!r}")
+                time_domain = flag == 1
+            elif key == "steps_per_period":
+                steps = finite_number(text, f"effect {spec!r}: steps_per_period")
             else:
                 params[key] = finite_number(text, f"effect {spec!r}")
-        return SlipLaw(law=law, params=tuple(params.items()), elements=elements, zones=tuple(zones))
+        return SlipLaw(law=law, params=tuple(params.items()), elements=elements, zones=tuple(zones),
+                       time_domain=time_domain, steps_per_period=steps)
     except InputError as e:
         text = str(e)
         if text.startswith("effect "):
@@ -418,9 +493,10 @@ class BenchConfig:
         and on the phase, tilted linearly over the sweep by up to the same amount.
     slip_tol : float
         Convergence tolerance of the strand-slip fixed point (``max |ln T(chi) - ln chi|`` over the
-        elements, :class:`sbcal.model.cable_element.ElementCableModel`).
+        elements, :class:`sbcal.model.cable_element.ElementCableModel`); not used in the time domain
+        (:attr:`SlipLaw.time_domain`: :func:`sbcal.model.cable_time.time_response`'s settling test).
     slip_max_iter : int
-        Newton budget per pass of the fixed point (InputError if a line does not converge).
+        Newton budget per pass of the fixed point (InputError if a line does not converge); the same.
     """
 
     params: dict = field(default_factory=dict, hash=False)
@@ -443,6 +519,7 @@ class BenchConfig:
     def __post_init__(self):
         object.__setattr__(self, "params", _check_params(self.params))
         object.__setattr__(self, "effects", _check_effects(dict(self.effects)))
+        _check_time_domain(self.params, self.effects)
         if int(self.runs) != self.runs or self.runs < 1:
             raise InputError(f"runs: expected an integer >= 1, got {self.runs!r}")
         if not 0 <= self.outlier_probability <= 1:
@@ -510,6 +587,8 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
     tol, max_iter : float, int
         The strand-slip fixed point's tolerance (on ``ln chi``) and Newton budget per pass
         (:class:`sbcal.model.cable_element.ElementCableModel`); a line that does not converge is an InputError.
+        Not used by the time-domain strand slip (:func:`_slip_in_time`: a line that does not settle or
+        whose time steps fail is an InputError).
 
     Returns
     -------
@@ -518,6 +597,7 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
     """
     effects = _check_effects(dict(effects))
     p = _defaults(damper, _check_params(params))
+    _check_time_domain(p, effects)
     f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
     col = {k: np.asarray(v, dtype=float).reshape(-1, 1) for k, v in p.items()}  # (n or 1, 1)
     geometry = {k: np.asarray(v, dtype=float) for k, v in p.items() if k not in ("EJ", "beta", "beta1", "beta2")}
@@ -555,6 +635,11 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         scale = ej_scale[:, 0]
         lp["delta_EJ"] = np.asarray(lp["delta_EJ"], dtype=float) * scale
         lp[slip.scale_name] = lp[slip.scale_name] * np.asarray(chi0_scale, dtype=float).reshape(-1)
+        if slip.time_domain:  # no frequency factor or per-arm loss here: _check_time_domain refused them
+            fm = _slip_in_time(damper, f, amplitude_mm_pp, law, lp, steps_per_period=slip.steps_per_period,
+                               ej_min=(col["EJ"] * ej_scale)[:, 0], beta=col["beta"][:, 0], rocking=rocking,
+                               geometry=geometry)
+            return _table_and_channels(fm, omega, effects)
         ej = col["EJ"] * ej_scale * factor
         linear = np.stack(np.broadcast_arrays(ej * (1 + 1j * b1), ej * (1 + 1j * b2)), axis=-1)
         model = ElementCableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter, zones=slip.zones)
@@ -573,6 +658,12 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
         e1 = e2 = col["EJ"] * ej_scale * factor
         H = arm_impedance(damper, f, ej1=e1, ej2=e2, beta1=b1, beta2=b2, **geometry)
         fm = H[..., 0, 0] + rocking * H[..., 0, 1] if rocking else H[..., 0, 0]
+    return _table_and_channels(fm, omega, effects)
+
+
+def _table_and_channels(fm, omega, effects: dict) -> np.ndarray:
+    """The damper's ``f`` (n_sets, n_freq) [N/m] as read through the table and the channels: fixture
+    mass, fixture resonance, sensor delay (``omega`` [rad/s], shape (1, n_freq))."""
     if "fixture_mass" in effects:
         fm = fm - omega**2 * effects["fixture_mass"]
     if "fixture_resonance" in effects:
@@ -582,6 +673,73 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
     if "sensor_delay" in effects:
         fm = fm * np.exp(-1j * omega * effects["sensor_delay"])
     return fm
+
+
+def _check_time_domain(params: dict, effects: dict):
+    """Refuse what the time-domain strand slip cannot carry (:data:`_TIME_REFUSED`): one line naming it."""
+    slip = effects.get("strand_slip")
+    if slip is None or not slip.time_domain:
+        return
+    for name, what in _TIME_REFUSED.items():
+        if name in effects or name in params:
+            kind = "effect" if name in effects else "parameter"
+            raise InputError(f"{kind} {name}: the time-domain strand slip (time:1) does not take it "
+                             f"(its cable has one constant loss factor and EJ for both arms, not {what})")
+
+
+def _slip_in_time(damper: Damper, freq_hz, amplitude_mm_pp, law, law_params: dict, *, steps_per_period: int,
+                  ej_min, beta, rocking, geometry: dict) -> np.ndarray:
+    """The time-domain strand slip: ``f_uu`` of the fast cable integrated from rest, as a shaker records it.
+
+    Every parameter set and line is one integration of :func:`sbcal.model.cable_time.time_response` (all
+    in one call: the runs of a test are its parameter sets) on :class:`sbcal.model.cable.CableModel` with
+    :data:`BENCH_SECTIONS` sections per arm (:data:`BENCH_ZONE_SECTIONS` per zone of a zoned law).
+
+    Parameters
+    ----------
+    damper : Damper
+    freq_hz : ndarray, shape (n_freq,)
+        Lines [Hz].
+    amplitude_mm_pp : float or array_like, shape (n_freq,)
+        Base amplitude per line [mm p-p].
+    law : HysteresisLaw
+        The strand slip's law (:func:`sbcal.model.hysteresis.law_for` of :attr:`SlipLaw.law`; zoned or not).
+    law_params : dict
+        The law's parameters with the re-clamping scatter applied, scalars or shape (n_sets,).
+    steps_per_period : int
+        Time steps per period (:attr:`SlipLaw.steps_per_period`).
+    ej_min, beta : ndarray, shape (n_sets,) or (1,)
+        Full-slip rigidity [N m^2] (scatter applied) and material loss factor [1].
+    rocking : float
+        Base rocking [rad/m].
+    geometry : dict
+        Geometry overrides of :data:`sbcal.model.damper.GEOMETRY`, scalars or shape (n_sets,).
+
+    Returns
+    -------
+    ndarray of complex, shape (n_sets, n_freq)
+        First harmonic of the base force over the base motion [N/m], last window.
+
+    Raises
+    ------
+    InputError
+        ``EJ <= 0`` or ``beta < 0``; a line that did not settle in the periods allowed or whose time steps
+        failed (named: never used).
+    """
+    if np.any(ej_min <= 0) or np.any(beta < 0):
+        raise InputError("strand_slip (time domain): EJ (the full-slip rigidity) must be > 0 and beta >= 0")
+    model = CableModel(law, sections=BENCH_SECTIONS, zone_sections=BENCH_ZONE_SECTIONS)
+    r = time_response(model, damper, freq_hz, amplitude_mm_pp, steps_per_period=steps_per_period,
+                      n_harmonics=_HARMONICS, EJ_min=ej_min, beta_material=beta, rocking_rad_per_m=rocking,
+                      **law_params, **geometry)
+    bad = ~(r.converged & r.settled)
+    if bad.any():
+        i, k = np.argwhere(bad)[0]
+        why = ("a time step's Newton solve failed" if not r.converged[i, k] else
+               f"did not settle in {r.periods[i, k]} periods (first harmonic still changing by {r.change[i, k]:.2g} "
+               "per window)")
+        raise InputError(f"strand_slip (time domain): the line at {freq_hz[k]:g} Hz, parameter set {i}: {why}")
+    return r.f_uu
 
 
 # --- the bench ---------------------------------------------------------------------------------
