@@ -204,18 +204,12 @@ class HarmonicBalance:
         omega, x0 = 2 * np.pi * f, amp / 2 * 1e-3
         rule = model._zone_rule(p, n_sets) if model.zoned else None
         arms = [model._arms(p, n_sets, h * omega, x0 if h == 1 else 0.0 * x0, rule) for h in orders]
-        first = model._newton(table, arms[0], model._start(table, arms[0]))
-        p0, p1 = first[0]
-        _, _, _, (kr, ki, _) = model._sums(table, arms[0], p0, p1)
         eta, w, lp, lin, law = self._sections(p, n_sets, arms[0])
-        q, b = eta.shape
-        load, chi = _start_arrays(p0, p1, kr + 1j * ki, eta, h_n)
+        first, start = self._first_start(table, arms[0], eta)
         # time basis: a signal is E x, its harmonics (2 / nt) E^T s
         theta = 2 * np.pi * np.arange(nt) / nt
         hs = np.repeat(np.asarray(orders, dtype=float), 2)
-        phase = hs[None, :] * theta[:, None]
-        basis = np.where(np.arange(2 * h_n) % 2 == 0, np.cos(phase), -np.sin(phase))  # (nt, 2H)
-        slope = np.where(np.arange(2 * h_n) % 2 == 0, -np.sin(phase), -np.cos(phase)) * hs  # d/dtheta
+        basis, slope = _basis(theta, hs, 0), _basis(theta, hs, 1)  # (nt, 2H); d/dtheta
         project = 2.0 / nt * basis.T  # (2H, nt)
         nmat = np.stack([np.stack([a.n[[0, 1]], a.n[[1, 2]]]) for a in arms])  # (H, 2, 2, b)
         nc = np.stack([a.nc for a in arms])  # (H, 2, b) complex
@@ -223,7 +217,15 @@ class HarmonicBalance:
         loss = np.asarray(orders, dtype=float) if self.material_loss == "viscous" else np.ones(h_n)
         lin_h = lin.real[..., None] + 1j * lin.imag[..., None] * loss
         ctx = (eta, w, lp, _complex_block(lin_h), law, basis, slope, project, hs, nmat, nc)
-        return ctx, arms, first, (load, chi)
+        return ctx, arms, first, start
+
+    def _first_start(self, table, arms, eta):
+        """The first-harmonic model's solution at ``arms`` and Newton's start made from it (loads,
+        curvatures; :func:`_start_arrays`)."""
+        first = self.model._newton(table, arms, self.model._start(table, arms))
+        p0, p1 = first[0]
+        _, _, _, (kr, ki, _) = self.model._sums(table, arms, p0, p1)
+        return first, _start_arrays(p0, p1, kr + 1j * ki, eta, len(self.orders))
 
     def _solve(self, table, p, n_sets, f, amp):
         model, h_n = self.model, len(self.orders)
@@ -256,10 +258,7 @@ class HarmonicBalance:
         first-harmonic model at ``scales[0]`` of the amplitude, each step solved from the last. In place."""
         idx = np.flatnonzero(~done)
         sub = _take(ctx, idx)
-        first = replace(arms.take(idx), nc=arms.nc[:, idx] * scales[0])
-        p0, p1 = self.model._newton(table, first, self.model._start(table, first))[0]
-        _, _, _, (kr, ki, _) = self.model._sums(table, first, p0, p1)
-        cl, cc = _start_arrays(p0, p1, kr + 1j * ki, sub[0], len(self.orders))
+        _, (cl, cc) = self._first_start(table, replace(arms.take(idx), nc=arms.nc[:, idx] * scales[0]), sub[0])
         its = 0
         for scale in scales:
             cl, cc, cd, cs, csg, ci = self._newton(sub, cl, cc, scale)
@@ -373,13 +372,10 @@ class HarmonicBalance:
         i0 = np.argmax(kt, axis=-1)
         th = 2 * np.pi * i0 / nt
         for _ in range(4):
-            ph = hs * th[..., None]
-            even = np.arange(k2) % 2 == 0
-            d1 = (chi * np.where(even, -np.sin(ph), -np.cos(ph)) * hs).sum(-1)
-            d2 = (chi * np.where(even, -np.cos(ph), np.sin(ph)) * hs**2).sum(-1)
+            d1 = (chi * _basis(th, hs, 1)).sum(-1)
+            d2 = (chi * _basis(th, hs, 2)).sum(-1)
             th = th - np.where(d2 < 0, d1 / np.where(d2 < 0, d2, 1.0), 0.0)
-        ph = hs * th[..., None]
-        star = np.where(np.arange(k2) % 2 == 0, np.cos(ph), -np.sin(ph))  # (Q, b, 2H)
+        star = _basis(th, hs, 0)  # (Q, b, 2H)
         chi_a = np.maximum((chi * star).sum(-1), kt.max(axis=-1))
         # one maximum per period (the slope changes sign twice): the steady loop's branches, with the
         # turning point's own term in the Jacobian; inner loops: the law's periodic evaluation
@@ -428,34 +424,37 @@ def _with_reversals(chi, hs, nt):
     dirs : ndarray, shape (n, 2 nt, 2H)
         Their derivatives with the harmonic coefficients.
     """
-    even = np.arange(hs.size) % 2 == 0
-
-    def basis(theta, order):
-        ph = hs * theta[..., None]
-        if order == 0:
-            return np.where(even, np.cos(ph), -np.sin(ph))
-        if order == 1:
-            return np.where(even, -np.sin(ph), -np.cos(ph)) * hs
-        return np.where(even, -np.cos(ph), np.sin(ph)) * hs**2
-
     theta = np.pi * np.arange(2 * nt) / nt
-    b0 = basis(theta, 0)
+    b0 = _basis(theta, hs, 0)
     out = chi @ b0.T
     dirs = np.broadcast_to(b0[None], (chi.shape[0],) + b0.shape).copy()
-    d = chi @ basis(theta[::2], 1).T  # slope at the samples
+    d = chi @ _basis(theta[::2], hs, 1).T  # slope at the samples
     rows, cols = np.nonzero(np.sign(d) != np.sign(np.roll(d, -1, axis=1)))
     if rows.size:
         c = chi[rows]
         lo = theta[2 * cols]
         t = lo + np.pi / nt
         for _ in range(5):
-            d1 = (c * basis(t, 1)).sum(-1)
-            d2 = (c * basis(t, 2)).sum(-1)
+            d1 = (c * _basis(t, hs, 1)).sum(-1)
+            d2 = (c * _basis(t, hs, 2)).sum(-1)
             t = np.clip(t - d1 / np.where(d2 != 0, d2, 1.0), lo, lo + 2 * np.pi / nt)
-        at = basis(t, 0)
+        at = _basis(t, hs, 0)
         out[rows, 2 * cols + 1] = (c * at).sum(-1)
         dirs[rows, 2 * cols + 1] = at  # at an extremum d chi / d theta = 0: only the coefficients move it
     return out, dirs
+
+
+def _basis(theta, hs, order):
+    """The real harmonic basis at phases ``theta`` (...,) and its ``order``-th derivative in theta (0-2):
+    columns ``cos(h theta), -sin(h theta)`` per harmonic of ``hs`` (each twice), so that a signal is
+    ``basis @ [Re, Im, ..]``. Shape (..., 2H)."""
+    even = np.arange(hs.size) % 2 == 0
+    ph = hs * theta[..., None]
+    if order == 0:
+        return np.where(even, np.cos(ph), -np.sin(ph))
+    if order == 1:
+        return np.where(even, -np.sin(ph), -np.cos(ph)) * hs
+    return np.where(even, -np.cos(ph), np.sin(ph)) * hs**2
 
 
 def _start_arrays(p0, p1, compliance, eta, h_n):
