@@ -106,6 +106,12 @@ class _CableBase:
         return p, n_sets, in_law
 
     @staticmethod
+    def _in_domain(p: dict, n_sets: int, in_law) -> np.ndarray:
+        """Per set (n_sets,): ``EJ_min > 0``, ``beta_material >= 0``, both finite, and the law's domain."""
+        valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
+        return np.broadcast_to(valid & in_law, (n_sets,))
+
+    @staticmethod
     def _valid_subset(p: dict, n_sets: int, valid):
         """Indices of the ``valid`` sets and their parameters (the per-set ones cut to them)."""
         keep = np.flatnonzero(valid)
@@ -517,8 +523,7 @@ class CableModel(_CableBase):
             if n_sets not in (1, amp.shape[0]):
                 raise InputError(f"amplitude_mm_pp: {amp.shape[0]} rows (sets) where the parameters have {n_sets}")
             n_sets = amp.shape[0]
-        valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
-        valid = np.broadcast_to(valid & in_law, (n_sets,))
+        valid = self._in_domain(p, n_sets, in_law)
         if valid.all():
             table = self._table(p, n_sets)
             valid = table.monotone

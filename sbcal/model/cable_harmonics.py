@@ -148,8 +148,7 @@ class HarmonicBalance:
         model = self.model
         p, n_sets, in_law = model._parameters(damper, params)
         f, amp, _ = _grid(freq_hz, amplitude_mm_pp, None)
-        valid = np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"]) & (p["beta_material"] >= 0)
-        valid = np.broadcast_to(valid & in_law, (n_sets,))
+        valid = model._in_domain(p, n_sets, in_law)
         table = model._table(p, n_sets) if valid.all() else None
         if table is not None:
             valid = table.monotone

@@ -572,9 +572,7 @@ def time_response(model: CableModel, damper: Damper, freq_hz, amplitude_mm_pp, *
         if n_sets not in (1, amp.shape[0]):
             raise InputError(f"amplitude_mm_pp: {amp.shape[0]} rows (sets) where the parameters have {n_sets}")
         n_sets = amp.shape[0]
-    valid = (np.isfinite(p["EJ_min"]) & (p["EJ_min"] > 0) & np.isfinite(p["beta_material"])
-             & (p["beta_material"] >= 0) & in_law)
-    valid = np.broadcast_to(valid, (n_sets,))
+    valid = model._in_domain(p, n_sets, in_law)
     keep, sub = model._valid_subset(p, n_sets, valid)
     nf = f.size
     shape = (n_sets, nf)
