@@ -176,4 +176,15 @@ def _distortion_words(harmonics: dict) -> str:
     return (f"predicted force distortion (posterior median, {orders}): largest {100 * big['value']:.1f} % at "
             f"{big['test']} {big['freq_hz']:g} Hz ({big['amplitude_mm_pp']:g} mm); the fit's first-harmonic f_uu is off "
             f"the multi-harmonic one by up to {100 * gap['value']:.1f} % (at {gap['test']} {gap['freq_hz']:g} Hz)"
-            + (f"; {missed} line(s) not converged" if missed else "") + f" [{harmonics['wall_s']:.0f} s]")
+            + (f"; {missed} line(s) not converged" if missed else "") + f" [{harmonics['wall_s']:.0f} s]"
+            + _measured_words(harmonics.get("comparison")))
+
+
+def _measured_words(c: dict | None) -> str:
+    """The recordings' own distortion against the prediction (bench files from ``sbcal import``)."""
+    if not c:
+        return ""
+    ratio = "" if c["median_ratio"] is None else f", measured/predicted median {c['median_ratio']:.2f}"
+    verdict = (f"the multi-harmonic solve is needed on {c['n_switch']} line(s) (not yet in the fit)" if c["n_switch"]
+               else "the first-harmonic fit stands")
+    return (f"; measured on {c['n_measured']} line(s): agrees with the law on {c['n_agree']}{ratio}: {verdict}")

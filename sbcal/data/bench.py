@@ -22,13 +22,26 @@ from ..core.errors import InputError
 
 
 __all__ = [
-    "BENCH_COLUMNS", "THESIS_TESTS", "FREQ_REL_TOL", "FREQ_STEP_FRACTION", "FREQ_NEAR_REL", "TestData", "BenchData",
+    "BENCH_COLUMNS", "MEASURED_COLUMNS", "SE_DEFAULT_DOF", "THESIS_TESTS", "FREQ_REL_TOL", "FREQ_STEP_FRACTION", "FREQ_NEAR_REL", "TestData", "BenchData",
     "test_label", "curves_to_frame", "write_bench", "rows_digest",
 ]
 
 BENCH_COLUMNS = (
     "damper", "test", "run", "frequency_hz", "amplitude_mm_pp", "stiffness_n_per_m", "phase_deg",
 )
+
+MEASURED_COLUMNS = (
+    "stiffness_se_n_per_m", "phase_se_deg", "se_windows", "distortion", "amplitude_achieved_mm_pp",
+)
+"""Optional columns a bench file may carry per row (``sbcal import`` writes them; ``docs/formats.md``): the
+standard errors of the line's magnitude [N/m] and phase [deg] from its period-to-period variation, the number of
+whole-period windows behind them (degrees of freedom ``se_windows - 1``), the force's harmonic distortion
+``sqrt(sum_{h>=2} |F_h|^2) / |F_1|`` and the base amplitude achieved [mm p-p]. Blank where not measured; files
+without them read as before."""
+
+SE_DEFAULT_DOF = 9
+"""Degrees of freedom of a measured standard error whose row has no ``se_windows`` (10 windows, as
+``sbcal import`` takes at least)."""
 
 THESIS_TESTS = ("0.1-0.1", "0.2-0.2", "0.3-0.3", "0.4-0.4", "0.5-0.5", "1-1", "2-2", "2-1", "1-1-oiled")
 """The seed thesis's test labels in its own order (Table 4.5)."""
@@ -50,6 +63,8 @@ left out, never made a line of its own. Farther away it is a line of the run's o
 
 
 # --- arrays of one test ------------------------------------------------------------------------
+
+_MEASURED_FIELDS = ("se_logmag", "se_phase", "se_dof", "distortion")
 
 def _readonly(a, dtype=None) -> np.ndarray:
     a = np.array(a, dtype=dtype, copy=True)
@@ -78,6 +93,13 @@ class TestData:
     unmatched : tuple of (int, float, float)
         ``(run, frequency_hz, nearest_line_hz)`` of recorded values that match no line (left out
         of the arrays), sorted; empty for most tests.
+    se_logmag, se_phase : ndarray, shape (n_runs, n_freq), or None
+        Measured standard errors of ``ln |F/X|`` [1] and of the phase [rad] of each run's line (the bench file's
+        :data:`MEASURED_COLUMNS`); NaN where not measured; None when the file has no such column.
+    se_dof : ndarray of int, shape (n_runs, n_freq), or None
+        Degrees of freedom behind them (``se_windows - 1``; 0 where not measured).
+    distortion : ndarray, shape (n_runs, n_freq), or None
+        Measured harmonic distortion of the force [1]; NaN where not measured.
 
     Arrays are read-only; equality is identity (arrays have no single truth value).
     """
@@ -92,18 +114,32 @@ class TestData:
     magnitude: np.ndarray
     phase_deg: np.ndarray
     unmatched: tuple = ()
+    se_logmag: np.ndarray | None = None
+    se_phase: np.ndarray | None = None
+    se_dof: np.ndarray | None = None
+    distortion: np.ndarray | None = None
 
     def __post_init__(self):
         set_ = object.__setattr__
         set_(self, "runs", _readonly(self.runs, np.int64))
         for name in ("freq_hz", "amplitude_mm_pp", "magnitude", "phase_deg"):
             set_(self, name, _readonly(self.__dict__[name], float))
+        for name in _MEASURED_FIELDS:
+            if self.__dict__[name] is not None:
+                set_(self, name, _readonly(self.__dict__[name], np.int64 if name == "se_dof" else float))
+                if self.__dict__[name].shape != self.magnitude.shape:
+                    raise ValueError(f"TestData: {name} must have the shape of magnitude")
         set_(self, "unmatched", tuple((int(r), float(f), float(c)) for r, f, c in self.unmatched))
         n_runs, n_freq = self.runs.size, self.freq_hz.size
         if self.runs.ndim != 1 or self.freq_hz.ndim != 1 or self.amplitude_mm_pp.shape != (n_freq,):
             raise ValueError("TestData: runs, freq_hz and amplitude_mm_pp must be 1-D, the last two of equal length")
         if self.magnitude.shape != (n_runs, n_freq) or self.phase_deg.shape != (n_runs, n_freq):
             raise ValueError(f"TestData: magnitude and phase_deg must have shape {(n_runs, n_freq)}")
+
+    @property
+    def measured_noise(self) -> bool:
+        """Whether any line carries a measured standard error."""
+        return self.se_logmag is not None and bool(np.isfinite(self.se_logmag).any())
 
     @property
     def present(self) -> np.ndarray:
@@ -132,9 +168,11 @@ class TestData:
         rows = np.searchsorted(self.runs, ids)
         cols = np.flatnonzero(self.present[rows].any(axis=0))
         keep = set(ids.tolist())
+        cut = np.ix_(rows, cols)
+        measured = {k: (None if self.__dict__[k] is None else self.__dict__[k][cut]) for k in _MEASURED_FIELDS}
         return TestData(self.damper, self.test, ids, self.freq_hz[cols], self.amplitude_mm_pp[cols],
-                        self.magnitude[np.ix_(rows, cols)], self.phase_deg[np.ix_(rows, cols)],
-                        tuple(u for u in self.unmatched if u[0] in keep))
+                        self.magnitude[cut], self.phase_deg[cut], tuple(u for u in self.unmatched if u[0] in keep),
+                        **measured)
 
 
 def _test_order(label: str):
@@ -242,8 +280,9 @@ class BenchData:
         The file read.
     frame : DataFrame
         The validated rows in file order (sheets in workbook order), the seven
-        :data:`BENCH_COLUMNS` only: ``run`` int64, labels stripped of surrounding blanks, the
-        rest float64 (all finite).
+        :data:`BENCH_COLUMNS` and those of :data:`MEASURED_COLUMNS` the file has: ``run`` int64, labels
+        stripped of surrounding blanks, the rest float64 (the contract's all finite; a measured value NaN where
+        not measured).
     """
 
     source: str
@@ -294,8 +333,26 @@ class BenchData:
             g[ri, line[ok]] = f[col].to_numpy()[idx][ok]
             grids.append(g)
         unmatched = sorted(zip(run[~ok].tolist(), freq[~ok].tolist(), nearest[~ok].tolist()))
+
+        def grid(col, fill=np.nan):
+            g = np.full((runs.size, centres.size), fill)
+            if col in f:
+                g[ri, line[ok]] = f[col].to_numpy(dtype=float)[idx][ok]
+            return g
+
+        measured = {}
+        if "stiffness_se_n_per_m" in f:  # the reader allows it only with phase_se_deg
+            with np.errstate(invalid="ignore"):
+                measured["se_logmag"] = grid("stiffness_se_n_per_m") / grids[1]
+            measured["se_phase"] = np.radians(grid("phase_se_deg"))
+            windows = grid("se_windows") if "se_windows" in f else np.full(measured["se_phase"].shape, np.nan)
+            dof = np.where(np.isfinite(windows), windows - 1, SE_DEFAULT_DOF)
+            measured["se_dof"] = np.where(np.isfinite(measured["se_phase"]), dof, 0).astype(np.int64)
+        if "distortion" in f:
+            measured["distortion"] = grid("distortion")
         # every line has at least one run by construction: the median is defined everywhere
-        return TestData(damper, test, runs, centres, _nanmedian0(grids[0]), grids[1], grids[2], tuple(unmatched))
+        return TestData(damper, test, runs, centres, _nanmedian0(grids[0]), grids[1], grids[2], tuple(unmatched),
+                        **measured)
 
 
 def _nanmedian0(a: np.ndarray) -> np.ndarray:
@@ -370,5 +427,5 @@ def rows_digest(bench: BenchData, damper: str, test: str | None = None) -> str:
 
     f = bench.frame
     sel = f[(f["damper"] == damper) & ((f["test"] == test) if test is not None else True)]
-    sel = sel[list(BENCH_COLUMNS)].sort_values(["test", "run", "frequency_hz"], kind="mergesort")
+    sel = sel[[c for c in BENCH_COLUMNS + MEASURED_COLUMNS if c in f]].sort_values(["test", "run", "frequency_hz"], kind="mergesort")
     return hashlib.sha256(sel.to_csv(index=False, float_format="%.17g").encode()).hexdigest()

@@ -149,6 +149,8 @@ def _window(a: np.ndarray, h: int) -> np.ndarray:
     rows, nf = a.shape
     out = np.full((2 * h + 1, rows, nf), np.nan)
     for j, s in enumerate(range(-h, h + 1)):
+        if abs(s) >= nf:  # a shift past every line (a test of fewer lines than the window): all NaN
+            continue
         if s >= 0:
             out[j, :, :nf - s] = a[:, s:]
         else:

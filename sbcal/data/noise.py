@@ -42,6 +42,9 @@ class NoiseModel:
         Degrees of freedom behind each sigma: ``sum_k (n_k - 1)`` over the lines k pooled into
         it (after the glitch screen, so they may differ between the components); 0 where
         ``single_run_sigma`` was used. The likelihood's Student-t degrees of freedom.
+    measured : ndarray of bool, shape (n_freq,)
+        Where a measured standard error (the bench file's ``stiffness_se_n_per_m``, ``phase_se_deg``) set a
+        sigma (either component): see :func:`noise_model`, step 5.
 
     Sigmas are finite and >= :data:`NOISE_FLOOR`.
     """
@@ -52,6 +55,22 @@ class NoiseModel:
     n_runs: np.ndarray
     dof_logmag: np.ndarray
     dof_phase: np.ndarray
+    measured: np.ndarray | None = None
+
+
+def _with_measured(sigma: np.ndarray, dof: np.ndarray, se: np.ndarray, se_dof: np.ndarray,
+                   floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 5 of :func:`noise_model` for one component: the measured standard error where it is larger than the
+    repeats' sigma, or where no repeat gave a sigma (``dof == 0``). ``se``, ``se_dof``: (n_runs, n_freq) of the
+    kept runs, NaN / 0 where not measured. Returns (sigma, dof, used)."""
+    have = np.isfinite(se)
+    n = have.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt((np.where(have, se, 0.0) ** 2).sum(axis=0) / n)  # NaN where no run was measured
+    used = (n > 0) & ((dof == 0) | (rms > sigma))
+    sigma = np.where(used, np.maximum(rms, floor), sigma)
+    dof = np.where(used, np.where(have, se_dof, 0).sum(axis=0), dof)
+    return sigma, dof.astype(np.int64), used
 
 
 def _pooled_sigma(x: np.ndarray, floor: float, single_run_sigma: float, group: np.ndarray | None = None,
@@ -100,7 +119,13 @@ def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, flo
        branches keeps the scatter of both about their common mean, pools nothing and is pooled
        into no other line;
     4. lines with no degree of freedom within +-3 lines (a single run) get ``single_run_sigma``;
-       every sigma is at least ``floor``.
+       every sigma is at least ``floor``;
+    5. where the bench file gives measured standard errors (``sbcal import``: the first harmonic's
+       period-to-period variation within each dwell), their RMS over the kept runs replaces the sigma of
+       steps 3-4 where it is larger or where step 4 applied, with their degrees of freedom
+       (``sum (se_windows - 1)``). The repeats' scatter holds the within-dwell noise and the run-to-run
+       variation, so it can only be smaller than the measured error by chance; a single run's noise is then
+       measured instead of assumed. Lines without a measured value keep steps 1-4.
 
     Parameters
     ----------
@@ -129,6 +154,11 @@ def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, flo
     split = np.isin(test.freq_hz, branches.freq_hz) if branches.split else None
     sig_m, dof_m = _pooled_sigma(logmag, floor, single_run_sigma, group, split)
     sig_p, dof_p = _pooled_sigma(phase, floor, single_run_sigma, group, split)
+    measured = np.zeros(test.freq_hz.size, bool)
+    if test.measured_noise:
+        sig_m, dof_m, used_m = _with_measured(sig_m, dof_m, test.se_logmag[keep], test.se_dof[keep], floor)
+        sig_p, dof_p, used_p = _with_measured(sig_p, dof_p, test.se_phase[keep], test.se_dof[keep], floor)
+        measured = used_m | used_p
     return NoiseModel(
         freq_hz=_readonly(test.freq_hz, float),
         sigma_logmag=_readonly(sig_m, float),
@@ -136,4 +166,5 @@ def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, flo
         n_runs=_readonly(test.present.sum(axis=0), np.int64),
         dof_logmag=_readonly(dof_m, np.int64),
         dof_phase=_readonly(dof_p, np.int64),
+        measured=_readonly(measured, bool),
     )

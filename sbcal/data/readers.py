@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ..core.errors import InputError
-from .bench import BENCH_COLUMNS, BenchData
+from .bench import BENCH_COLUMNS, MEASURED_COLUMNS, BenchData
 
 
 __all__ = ["load_bench", "default_bench_path"]
@@ -46,7 +46,20 @@ def default_bench_path() -> Path:
 
 _LABELS = ("damper", "test")
 _NUMERIC = BENCH_COLUMNS[2:]
-_POSITIVE = ("frequency_hz", "amplitude_mm_pp", "stiffness_n_per_m")
+_POSITIVE = ("frequency_hz", "amplitude_mm_pp", "stiffness_n_per_m", "amplitude_achieved_mm_pp")
+_SE_PAIR = ("stiffness_se_n_per_m", "phase_se_deg")
+
+
+def _columns(names) -> list[str]:
+    """The contract's columns and the optional measured ones among ``names``, in that order."""
+    return list(BENCH_COLUMNS) + [c for c in MEASURED_COLUMNS if c in names]
+
+
+def _measured_rule(col: str) -> str:
+    """What a measured column's value must be (blank: not measured)."""
+    if col == "se_windows":
+        return "an integer >= 2"
+    return "> 0" if col in _POSITIVE else ">= 0"
 
 # where(rows) -> one place name per row ("line 5", "sheet 'A', row 5", "row index 4");
 # explain(column, row) -> what is wrong with that value. Only called to report an error.
@@ -77,6 +90,18 @@ def _bad_masks(df: pd.DataFrame) -> list:
         if col in _POSITIVE:
             bad |= x <= 0  # NaN compares False: already flagged
         checks.append((col, bad))
+    for col in MEASURED_COLUMNS:  # blank (NaN) is "not measured"; +inf also marks text that is not a number
+        if col not in df:
+            continue
+        x = df[col].to_numpy(dtype=float)
+        with np.errstate(invalid="ignore"):
+            bad = np.isinf(x) | (x <= 0 if col in _POSITIVE else x < 0)
+            if col == "se_windows":
+                bad |= (x != np.round(x)) & ~np.isnan(x) | (x < 2)
+        if col in _SE_PAIR and all(c in df for c in _SE_PAIR):
+            other = df[_SE_PAIR[1 - _SE_PAIR.index(col)]].to_numpy(dtype=float)
+            bad |= np.isnan(x) & ~np.isnan(other)  # one standard error without the other
+        checks.append((col, bad))
     return [c for c in checks if c[1].any()]
 
 
@@ -91,11 +116,11 @@ def _raise_first(source, found: list, where: _Where, explain: _Explain) -> None:
 
 def _finish(source, df: pd.DataFrame, where: _Where) -> pd.DataFrame:
     """The checked rows typed as in :attr:`BenchData.frame`; duplicate keys rejected."""
-    df = df[list(BENCH_COLUMNS)].reset_index(drop=True)
+    df = df[_columns(df.columns)].reset_index(drop=True)
     for col in _LABELS:  # the text dtype pandas gives CSV labels, whatever the format
         df[col] = df[col].astype(str)
     df["run"] = df["run"].to_numpy(dtype=float).astype(np.int64)
-    for col in _NUMERIC[1:]:
+    for col in _columns(df.columns)[3:]:
         df[col] = df[col].to_numpy(dtype=float)
     key = ["damper", "test", "run", "frequency_hz"]
     dup = df.duplicated(subset=key, keep="first").to_numpy()
@@ -117,7 +142,8 @@ def _validated(source, df: pd.DataFrame, where: _Where, explain: _Explain) -> pd
     """The checks every format shares: labels, numbers, run ids, duplicates (docs/data.md 1).
 
     ``df`` holds the seven contract columns: labels as text (NaN or None where missing), the
-    rest as numbers (NaN where a cell is not a number).
+    rest as numbers (NaN where a cell is not a number); and the measured columns the file has, as numbers (NaN
+    where blank, +inf where a cell is not a number).
     """
     _clean_labels(df)
     found = _bad_masks(df)
@@ -127,13 +153,19 @@ def _validated(source, df: pd.DataFrame, where: _Where, explain: _Explain) -> pd
 
 
 def _check_header(source, names: list, at: str) -> None:
-    """Every contract column exactly once among ``names`` (stripped header cells)."""
-    for col in BENCH_COLUMNS:
+    """Every contract column exactly once among ``names`` (stripped header cells), a measured column at most
+    once, and the two standard errors together."""
+    for col in BENCH_COLUMNS + MEASURED_COLUMNS:
         count = names.count(col)
-        if count == 0:
+        if count == 0 and col in BENCH_COLUMNS:
             raise InputError(f"{source}: {at}: missing column '{col}' (required: {','.join(BENCH_COLUMNS)})")
         if count > 1:
             raise InputError(f"{source}: {at}: column '{col}' appears {count} times")
+    have = [c in names for c in _SE_PAIR]
+    if any(have) and not all(have):
+        missing = _SE_PAIR[have.index(False)]
+        raise InputError(f"{source}: {at}: column '{_SE_PAIR[have.index(True)]}' without '{missing}' "
+                         "(the two standard errors come together)")
 
 
 def load_bench(path, sheet: str | None = None) -> BenchData:
@@ -305,8 +337,8 @@ def _read_frame(path: Path, header: list[str], dtypes: dict, delimiter: str) -> 
         raise _not_utf8(path) from None
     except (OSError, EOFError) as e:
         raise InputError(f"{path}: cannot read: {e}") from None
-    df = df.rename(columns={h: c for h, c in names.items() if c in BENCH_COLUMNS})
-    return df[list(BENCH_COLUMNS)]
+    df = df.rename(columns={h: c for h, c in names.items() if c in dtypes})
+    return df[_columns(df.columns)]
 
 
 def _not_utf8(path: Path) -> InputError:
@@ -343,6 +375,9 @@ def _decimal_comma_numbers(s: pd.Series) -> np.ndarray:
 def _explain_csv(text: pd.DataFrame, df: pd.DataFrame, decimal_comma: bool) -> _Explain:
     def explain(col: str, i: int) -> str:
         s = str(text[col].iloc[i]).strip()
+        if col in MEASURED_COLUMNS:
+            x = float(df[col].iloc[i])
+            return _explain_measured(col, repr(s) if np.isinf(x) else s, x)
         if s == "" or col in _LABELS:
             return "empty value"
         if col == "run":
@@ -356,6 +391,23 @@ def _explain_csv(text: pd.DataFrame, df: pd.DataFrame, decimal_comma: bool) -> _
             return f"expected a number with a decimal comma, got {s!r} (a dot is read only between thousands)"
         return f"expected a number, got {s!r}"
     return explain
+
+
+def _explain_measured(col: str, shown: str, x: float) -> str:
+    """Why a measured column's value was refused (``x``: as read; +inf for a cell that is not a number)."""
+    if np.isnan(x):
+        return f"blank, while '{_SE_PAIR[1 - _SE_PAIR.index(col)]}' is given (the two standard errors come together)"
+    if np.isinf(x):
+        return f"expected a number or a blank (not measured), got {shown}"
+    return f"must be {_measured_rule(col)} or blank (not measured), got {shown}"
+
+
+def _text_numbers(s: pd.Series, parse) -> np.ndarray:
+    """A measured column's text to numbers: blank -> NaN (not measured), text that is no number -> +inf."""
+    x = parse(s)
+    junk = np.isnan(x) & (s.fillna("").str.strip() != "").to_numpy(dtype=bool) & \
+        ~s.fillna("").str.strip().str.lower().isin(["nan", "na", "n/a"]).to_numpy(dtype=bool)
+    return np.where(junk, np.inf, x)
 
 
 def _load_csv(p: Path) -> pd.DataFrame:
@@ -373,8 +425,9 @@ def _load_csv(p: Path) -> pd.DataFrame:
         lines = _record_lines(p, rows, delim)
         return [f"line {lines.get(r, r + 2)}" for r in rows]
 
+    columns = _columns([h.strip() for h in header])
     if delim == ",":
-        fast = {c: (str if c in _LABELS else float) for c in BENCH_COLUMNS}
+        fast = {c: (str if c in _LABELS else float) for c in columns}
         try:
             df = _read_frame(p, header, fast, delim)
             _clean_labels(df)
@@ -389,13 +442,14 @@ def _load_csv(p: Path) -> pd.DataFrame:
             return _finish(p, df, where)
     # the text pass: labels such as "NA" are text (NaN to the typed reader), and a semicolon or
     # tab file may write decimal commas
-    text = _read_frame(p, header, dict.fromkeys(BENCH_COLUMNS, str), delim)
+    text = _read_frame(p, header, dict.fromkeys(columns, str), delim)
     if len(text) == 0:
         raise InputError(f"{p}: line {header_line}: header only, no data rows")
-    decimal_comma = delim != "," and any(text[c].str.contains(",", regex=False).any() for c in _NUMERIC)
+    decimal_comma = delim != "," and any(text[c].str.contains(",", regex=False).any() for c in columns[2:])
     parse = _decimal_comma_numbers if decimal_comma else (
         lambda s: pd.to_numeric(s, errors="coerce").to_numpy(dtype=float))
-    df = pd.DataFrame({c: (text[c] if c in _LABELS else parse(text[c])) for c in BENCH_COLUMNS})
+    df = pd.DataFrame({c: (text[c] if c in _LABELS else _text_numbers(text[c], parse) if c in MEASURED_COLUMNS
+                           else parse(text[c])) for c in columns})
     return _validated(p, df, where, _explain_csv(text, df, decimal_comma))
 
 
@@ -421,6 +475,11 @@ def _cell_number(v) -> float:
     return float(v) if type(v) in (int, float) else np.nan
 
 
+def _measured_cell(v) -> float:
+    """A measured column's cell: blank -> NaN (not measured), a cell that is no number -> +inf (refused)."""
+    return np.nan if _is_blank_cell(v) else (float(v) if type(v) in (int, float) else np.inf)
+
+
 def _describe_cell(v) -> str:
     if isinstance(v, bool):
         return str(v).upper()
@@ -434,6 +493,9 @@ def _describe_cell(v) -> str:
 def _explain_cell(raw: dict) -> _Explain:
     def explain(col: str, i: int) -> str:
         v = raw[col][i]
+        if col in MEASURED_COLUMNS:
+            x = _measured_cell(v)
+            return _explain_measured(col, _describe_cell(v) if np.isinf(x) else f"{x:g}", x)
         if _is_blank_cell(v):
             return "empty value"
         if col in _LABELS:
@@ -473,7 +535,7 @@ def _read_sheet(path: Path, ws, name: str):
     if not data:
         raise InputError(f"{path}: {at}, row {header_row}: header only, no data rows")
     raw = {}
-    for col in BENCH_COLUMNS:
+    for col in _columns(names):
         i = names.index(col)
         raw[col] = [row[i] if i < len(row) else None for row in data]
     return raw, numbers
@@ -502,7 +564,13 @@ def _load_xlsx(p: Path, sheet: str | None) -> pd.DataFrame:
         parts = [(n, *_read_sheet(p, wb[n], n)) for n in names]
     finally:
         wb.close()
-    raw = {c: [v for _, cols, _ in parts for v in cols[c]] for c in BENCH_COLUMNS}
+    columns = _columns(set.intersection(*(set(cols) for _, cols, _ in parts)))
+    for name, cols, _ in parts:
+        extra = [c for c in cols if c not in columns]
+        if extra:  # a measured column on one sheet only would leave the others' rows half described
+            raise InputError(f"{p}: sheet {name!r}: column '{extra[0]}' that other sheets lack (give it on every "
+                             "sheet, blank where not measured)")
+    raw = {c: [v for _, cols, _ in parts for v in cols[c]] for c in columns}
     sheet_of = np.concatenate([np.full(len(rows), k) for k, (_, _, rows) in enumerate(parts)])
     row_of = np.concatenate([rows for _, _, rows in parts])
 
@@ -510,8 +578,9 @@ def _load_xlsx(p: Path, sheet: str | None) -> pd.DataFrame:
         return [f"sheet {parts[sheet_of[r]][0]!r}, row {row_of[r]}" for r in rows]
 
     df = pd.DataFrame({c: (pd.Series([_cell_label(v) for v in raw[c]], dtype=object) if c in _LABELS
+                           else np.array([_measured_cell(v) for v in raw[c]], dtype=float) if c in MEASURED_COLUMNS
                            else np.array([_cell_number(v) for v in raw[c]], dtype=float))
-                       for c in BENCH_COLUMNS})
+                       for c in columns})
     return _validated(p, df, where, _explain_cell(raw))
 
 
@@ -531,7 +600,8 @@ def _load_parquet(p: Path) -> pd.DataFrame:
     if meta.num_rows == 0:  # before the types: a writer may type an empty column as null
         raise InputError(f"{p}: no data rows")
     text_types = (pa.types.is_string, pa.types.is_large_string, getattr(pa.types, "is_string_view", lambda t: False))
-    for col in BENCH_COLUMNS:
+    columns = _columns(schema.names)
+    for col in columns:
         t = schema.field(schema.names.index(col)).type
         base = t.value_type if pa.types.is_dictionary(t) else t
         if col in _LABELS:
@@ -543,20 +613,23 @@ def _load_parquet(p: Path) -> pd.DataFrame:
         if not ok:
             raise InputError(f"{p}: column '{col}': Parquet type {t}, expected {want}")
     try:
-        table = pq.read_table(p, columns=list(BENCH_COLUMNS))
+        table = pq.read_table(p, columns=columns)
     except (pa.ArrowException, OSError) as e:
         raise InputError(f"{p}: cannot read as Parquet: {str(e).strip().splitlines()[0]}") from None
     if table.num_rows == 0:
         raise InputError(f"{p}: no data rows")
-    null = {c: table.column(c).is_null().to_numpy(zero_copy_only=False) for c in BENCH_COLUMNS}
+    null = {c: table.column(c).is_null().to_numpy(zero_copy_only=False) for c in columns}
     df = pd.DataFrame({c: (pc.cast(table.column(c), pa.string()).to_pandas() if c in _LABELS
                            else pc.cast(table.column(c), pa.float64()).to_numpy(zero_copy_only=False))
-                       for c in BENCH_COLUMNS})
+                       for c in columns})
 
     def where(rows):
         return [f"row index {r}" for r in rows]
 
     def explain(col, i):
+        if col in MEASURED_COLUMNS:
+            x = float(df[col].iloc[i])
+            return _explain_measured(col, f"{x:g}", x)
         if null[col][i] or col in _LABELS:
             return "empty value" + (" (null)" if null[col][i] else "")
         x = float(df[col].iloc[i])

@@ -456,14 +456,17 @@ def _curves(case: _Case, fits, base_keys, shown, shown_fits, sd=None, harmonics=
         for t in h["distortion"]:
             out[shown][t].update(distortion=h["distortion"][t], harmonics_gap=h["gap"][t],
                                  harmonics_converged=h["converged"][t])
+            if "measured" in h:  # the recordings' own distortion and the harmonic switch (sbcal import's files)
+                out[shown][t].update(distortion_measured=h["measured"][t], harmonics_switch=h["switch"][t])
     out["data"] = {t: {"logmag": lk.ybar[0].tolist(), "phase": lk.ybar[1].tolist()} for t, lk in zip(tests, likes)}
     return out
 
 
 def curves_frame(doc: dict):
     """The fitted curves of a diagnosis (baseline and verdict model, posterior median per line) in the
-    bench CSV columns (``run`` 0) plus ``model`` and ``distortion`` (the cable law's predicted force distortion
-    [1], NaN where it was not computed or did not converge): a DataFrame for ``sbcal diagnose --curves``."""
+    bench CSV columns (``run`` 0) plus ``model``, ``distortion`` (the cable law's predicted force distortion
+    [1], NaN where it was not computed or did not converge) and ``distortion_measured`` (the recordings' own,
+    median over the runs; NaN where the bench file has none): a DataFrame for ``sbcal diagnose --curves``."""
     import pandas as pd
 
     from ..data.bench import curves_to_frame
@@ -478,6 +481,8 @@ def curves_frame(doc: dict):
                                     runs=[0])
             frame["model"] = model
             frame["distortion"] = np.array(c.get("distortion", [None] * len(c["freq_hz"])), dtype=float)
+            frame["distortion_measured"] = np.array(c.get("distortion_measured", [None] * len(c["freq_hz"])),
+                                                    dtype=float)
             frames.append(frame)
     return pd.concat(frames, ignore_index=True)
 

@@ -89,6 +89,10 @@ class TestLikelihood:
         :func:`sbcal.model.fem.dynamic_stiffness` (a physics extension swaps it).
     amplitude_mm_pp : ndarray, shape (n_freq,), optional
         Commanded amplitude per line (kept with the run; amplitude-dependent models read it).
+    measured_distortion : ndarray, shape (n_freq,), optional
+        The force's harmonic distortion measured per line (median over the runs; NaN where not measured;
+        default: none). Kept with the data for the harmonic switch (:func:`sbcal.inference.distortion.predicted_distortion`);
+        the density does not use it.
 
     Calling the object with ``z`` of shape ``(n, ndim)`` (the prior's sampled coordinates) returns
     the log-posterior, shape ``(n,)``: emcee's ``log_prob`` with ``vectorize=True``. Every other method
@@ -98,12 +102,15 @@ class TestLikelihood:
     __test__ = False  # "Test" here is a bench test, not a pytest class
 
     def __init__(self, damper: Damper, prior: Prior, freq_hz, magnitude, phase_deg, sigma_logmag,
-                 sigma_phase, *, noise_dof=None, fixed=None, model=None, amplitude_mm_pp=None):
+                 sigma_phase, *, noise_dof=None, fixed=None, model=None, amplitude_mm_pp=None,
+                 measured_distortion=None):
         self.damper = damper
         self.prior = prior
         self.freq_hz = np.asarray(freq_hz, dtype=float)
         self.amplitude_mm_pp = (np.full(self.freq_hz.shape, np.nan) if amplitude_mm_pp is None
                                 else np.broadcast_to(np.asarray(amplitude_mm_pp, float), self.freq_hz.shape))
+        self.measured_distortion = (np.full(self.freq_hz.shape, np.nan) if measured_distortion is None else
+                                    np.broadcast_to(np.asarray(measured_distortion, float), self.freq_hz.shape))
         mag = np.atleast_2d(np.asarray(magnitude, dtype=float))
         self.y = np.stack([np.log(mag), np.radians(np.atleast_2d(phase_deg))])  # (2, n_runs, n_freq)
         self.present = np.isfinite(mag)
