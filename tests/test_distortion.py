@@ -193,3 +193,32 @@ def test_the_report_draws_the_stored_distortion(fit, plain, tmp_path, monkeypatc
     assert main(["report", "--runs", str(runs), "-o", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err.strip()
     assert f"{summary}: key 'harmonics'" in err and "\n" not in err
+
+
+def test_measured_distortion_is_set_beside_the_prediction_and_switches(sweep, tmp_path):
+    """A bench file with its own distortion (``sbcal import``'s column): the law's prediction confirmed at 2 mm,
+    contradicted at 0.5 mm (undistorted recordings), not measured at 0.1 mm."""
+    slip = predicted_distortion(sweep, _point(sweep), AMPLITUDES)
+    frame = pd.concat([curves_to_frame(sweep.damper.name, t, lk.freq_hz, lk.amplitude_mm_pp,
+                                       np.exp(lk.y[0] + 1j * lk.y[1]))
+                       for t, lk in zip(AMPLITUDES, sweep.likes)], ignore_index=True)
+    measured = {"0.1-0.1": np.nan, "0.5-0.5": 0.0}
+    frame["distortion"] = np.concatenate([
+        np.tile(1.1 * np.array(slip["distortion"][t], float), lk.y.shape[1]) if t == "2-2"
+        else np.full(lk.y.shape[1] * lk.freq_hz.size, measured[t]) for t, lk in zip(AMPLITUDES, sweep.likes)])
+    sweep_path = tmp_path / "m.csv"
+    frame.to_csv(sweep_path, index=False)
+    like = cable_likelihood(sweep.damper, clean_bench(load_bench(sweep_path)), list(AMPLITUDES), LAW)
+    h = predicted_distortion(like, _point(like), AMPLITUDES)
+    np.testing.assert_allclose(np.array(h["measured"]["2-2"], float), 1.1 * np.array(slip["distortion"]["2-2"], float))
+    assert all(v is None for v in h["measured"]["0.1-0.1"]) and not any(h["agrees"]["0.1-0.1"])
+    assert not any(h["agrees"]["0.5-0.5"]) and not any(h["switch"]["0.5-0.5"])  # predicted, not recorded: no switch
+    on = np.array(h["switch"]["2-2"])
+    gap = np.array(h["gap"]["2-2"], float)
+    lk = like.likes[2]
+    np.testing.assert_array_equal(on, gap > 2 * lk.sigma[0] / np.sqrt(lk.n))  # all agree at 2 mm: the gap decides
+    assert on.any() and h["comparison"]["n_switch"] == on.sum()
+    assert h["comparison"]["n_measured"] == 2 * STANDARD_GRID_HZ.size
+    p, m = _lines(h, "distortion", AMPLITUDES), _lines(h, "measured", AMPLITUDES)
+    big = np.isfinite(m) & (p > 0.01)
+    assert h["comparison"]["median_ratio"] == pytest.approx(np.median(m[big] / p[big]))

@@ -221,7 +221,9 @@ def _law_figure(cables: dict, path: Path) -> str:
 def _distortion_figure(cables: dict, path: Path) -> str:
     """The base force's harmonic distortion each cable state's law predicts at its posterior median, per line
     (the stored ``harmonics`` of ``cable-<state>/summary.json``): one panel a state, one curve a test, gaps
-    where the multi-harmonic solve did not converge."""
+    where the multi-harmonic solve did not converge; where the recordings carry their own distortion
+    (``harmonics.measured``, from ``sbcal import``), open circles of the test's colour, filled where the
+    harmonic switch is on."""
     plt = pyplot()
     states = sorted(cables)
     fig, axes = plt.subplots(1, len(states), figsize=(5.5 * len(states), 3.6), squeeze=False)
@@ -237,7 +239,15 @@ def _distortion_figure(cables: dict, path: Path) -> str:
             peak = max(peak, float(np.nanmax(y, initial=0.0)))
             ax.plot(h["freq_hz"][t], y, color=color, lw=1.2, marker=".", ms=3,
                     label=f"{t} ({', '.join(f'{a:g}' for a in np.unique(amps[t]))} mm)")
+            if "measured" in h:
+                m = 100 * np.array(h["measured"][t], dtype=float)
+                on = np.array([bool(v) for v in h["switch"][t]])
+                peak = max(peak, float(np.nanmax(m, initial=0.0)))
+                f = np.asarray(h["freq_hz"][t], float)
+                ax.scatter(f, m, s=14, facecolors=[color if o else "none" for o in on], edgecolors=[color], lw=0.8)
         # headroom above the curves for the legend
+        if "measured" in h:
+            ax.scatter([], [], s=14, facecolors="none", edgecolors="grey", label="measured (filled: switch on)")
         ax.set(xlabel="frequency [Hz]", ylabel="force distortion [%]", ylim=(0, 1.35 * peak or 1.0),
                title=f"{state} cable ({cables[state]['law']}): harmonics {h['orders'][0]}-{h['orders'][-1]}")
         ax.grid(alpha=0.3)
