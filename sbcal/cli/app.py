@@ -12,6 +12,7 @@ import sys
 from ..core.errors import InputError
 from ..core.version import __version__
 from ..core.workers import one_blas_thread
+from .acquisition import add_import, cmd_import
 from .calibration import (add_bench, add_data, add_map, add_report, add_run, add_sample, add_simulate, cmd_bench,
                           cmd_data, cmd_map, cmd_report, cmd_run, cmd_sample, cmd_simulate)
 from .design import add_design, add_predict, add_span, cmd_design, cmd_predict, cmd_span
@@ -28,6 +29,7 @@ _COMMANDS = {
     "map": (add_map, cmd_map),
     "report": (add_report, cmd_report),
     "run": (add_run, cmd_run),
+    "import": (add_import, cmd_import),
     "data": (add_data, cmd_data),
     "bench": (add_bench, cmd_bench),
     "diagnose": (add_diagnose, cmd_diagnose),

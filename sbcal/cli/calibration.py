@@ -325,8 +325,54 @@ def add_bench(sub):
     p.add_argument("--runs", type=int, default=24, metavar="N", help="runs per test (default 24)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
     p.add_argument("--ideal", action="store_true", help="no run-to-run scatter, noise or outliers")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
+                   help="the bench CSV; with --raw the truth lines of the raw files (no line noise or outliers)")
+    raw = p.add_argument_group("raw recordings (time-domain strand slip only; docs/virtual_bench.md)")
+    raw.add_argument("--raw", metavar="DIR", help="write each run's time series as DIR/<damper>_<test>_run<k>.tdms "
+                                                  "(or .h5) and the channel map DIR/channels.toml; -o gets their "
+                                                  "truth lines")
+    raw.add_argument("--raw-format", choices=("tdms", "hdf5"), help="raw file format (default tdms)")
+    raw.add_argument("--sample-rate", type=float, metavar="HZ", help="sampling rate (default 2560)")
+    raw.add_argument("--sensor-noise", type=float, metavar="REL",
+                     help="white noise per channel over its RMS (default 1e-3; 0: none)")
+    raw.add_argument("--hold-periods", type=int, metavar="N", help="steady periods held at each line (default 40)")
     return p
+
+
+def _bench_raw(args, damper, config, tests) -> int:
+    """``sbcal bench --raw``: each run's raw file, the channel map and the truth lines as the bench CSV."""
+    from pathlib import Path
+
+    from ..data.bench import write_bench
+    from ..simulate.raw_bench import iter_raw, truth_frame, write_channel_map, write_raw
+    from ..simulate.virtual_bench import test_amplitude
+
+    slip = config.effects.get("strand_slip")
+    if slip is None or not slip.time_domain:
+        raise InputError("--raw: the raw recordings need the time-domain strand slip "
+                         "(--effect strand_slip=...,time:1)")
+    for test in tests:
+        test_amplitude(test, 1.0)  # every label checked before any file is written
+    flags = {"rate_hz": "--sample-rate", "noise": "--sensor-noise", "hold_periods": "--hold-periods"}
+    options = {key: getattr(args, flag[2:].replace("-", "_")) for key, flag in flags.items()}
+    options = {key: value for key, value in options.items() if value is not None}  # else the library's defaults
+    rng = np.random.default_rng(args.seed)
+    runs = []
+    try:
+        for test in tests:
+            for run in iter_raw(damper, config, test, rng=rng, progress=f"{damper.name} {test}", **options):
+                write_raw(args.raw, run, args.raw_format or "tdms")
+                runs.append(run)
+    except InputError as e:
+        key, colon, rest = str(e).partition(":")
+        if colon and key in flags:  # a setting's own message, named by its option
+            raise InputError(f"{flags[key]}:{rest}") from None
+        raise
+    write_channel_map(Path(args.raw) / "channels.toml")
+    write_bench(truth_frame(runs), args.output)
+    print(f"wrote {len(runs)} raw files and channels.toml to {args.raw}, truth lines to {args.output}: "
+          f"{damper.name}, {len(tests)} tests x {args.runs} runs")
+    return 0
 
 
 def cmd_bench(args) -> int:
@@ -351,6 +397,11 @@ def cmd_bench(args) -> int:
         raise InputError(f"--seed {args.seed}: must be >= 0")
     config = BenchConfig(params=params, effects=effects, runs=args.runs)
     tests = args.tests or DEFAULT_TESTS
+    if args.raw:
+        return _bench_raw(args, damper, config.ideal() if args.ideal else config, tests)
+    for flag in ("raw_format", "sample_rate", "sensor_noise", "hold_periods"):
+        if getattr(args, flag) is not None:
+            raise InputError(f"--{flag.replace('_', '-')}: only with --raw DIR")
     frame = record(damper, config.ideal() if args.ideal else config, tests, rng=np.random.default_rng(args.seed))
     write_bench(frame, args.output)
     print(f"wrote {args.output}: {damper.name}, {len(tests)} tests x {args.runs} runs, "

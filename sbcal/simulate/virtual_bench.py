@@ -755,6 +755,38 @@ def _factor(rng, rel_sd, n):
     return np.exp(rel_sd * rng.standard_normal(n))
 
 
+def _reclamping(damper: Damper, config: BenchConfig, params: dict, rng: np.random.Generator):
+    """The re-clamping scatter of ``config.runs`` runs, drawn from ``rng`` (step 1 of :func:`record`).
+
+    Parameters
+    ----------
+    damper : Damper
+        Supplies ``a1``, ``a2`` when ``params`` has none.
+    config : BenchConfig
+    params : dict
+        The model parameters with their defaults (``_defaults(damper, config.params)``).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    runs : dict
+        ``params`` with ``a1``, ``a2`` and the loss factors scattered, shape (runs,) each of those.
+    ej_scale, chi0_scale : ndarray, shape (runs,)
+        Factors on the cable's rigidity and on the slip law's curvature scale (:func:`response`).
+    """
+    n = int(config.runs)
+    ej_scale = _factor(rng, config.ej_scatter, n)
+    beta_scale = _factor(rng, config.beta_scatter, n)
+    chi0_scale = _factor(rng, config.chi0_scatter, n)
+    a1 = np.asarray(params.get("a1", damper.a1), dtype=float) * (1 + config.offset_scatter * rng.standard_normal(n))
+    a2 = np.asarray(params.get("a2", damper.a2), dtype=float) * (1 + config.offset_scatter * rng.standard_normal(n))
+    runs = dict(params, a1=a1, a2=a2)
+    for name in ("beta", "beta1", "beta2"):
+        if name in runs:
+            runs[name] = np.asarray(runs[name], dtype=float) * beta_scale
+    return runs, ej_scale, chi0_scale
+
+
 def record(damper: Damper, config: BenchConfig, tests=DEFAULT_TESTS, *, rng: np.random.Generator,
            freq_hz=None) -> pd.DataFrame:
     """Run the virtual bench: ``config.runs`` runs of each test, as bench CSV rows.
@@ -806,15 +838,7 @@ def record(damper: Damper, config: BenchConfig, tests=DEFAULT_TESTS, *, rng: np.
     ramp = (f - f.min()) / max(f.max() - f.min(), 1e-300) - 0.5  # -0.5 .. 0.5 over the sweep
     frames = []
     for label, amp in zip(tests, amplitudes):
-        ej_scale = _factor(rng, config.ej_scatter, n)
-        beta_scale = _factor(rng, config.beta_scatter, n)
-        chi0_scale = _factor(rng, config.chi0_scatter, n)
-        a1 = np.asarray(p.get("a1", damper.a1), dtype=float) * (1 + config.offset_scatter * rng.standard_normal(n))
-        a2 = np.asarray(p.get("a2", damper.a2), dtype=float) * (1 + config.offset_scatter * rng.standard_normal(n))
-        runs = dict(p, a1=a1, a2=a2)
-        for name in ("beta", "beta1", "beta2"):
-            if name in runs:
-                runs[name] = np.asarray(runs[name], dtype=float) * beta_scale
+        runs, ej_scale, chi0_scale = _reclamping(damper, config, p, rng)
         fm = response(damper, f, amp, runs, config.effects, ej_scale=ej_scale, chi0_scale=chi0_scale,
                       tol=config.slip_tol, max_iter=config.slip_max_iter)
         dmag = sig_mag * rng.standard_normal(fm.shape)  # on ln |f|
