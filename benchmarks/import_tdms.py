@@ -114,10 +114,22 @@ if rc:
     raise SystemExit(rc)
 """
 
-def timed(code, *argv):
+def drop_caches() -> bool:
+    """Empty the page cache (root on Linux) so the next read comes from the disk; False where not allowed."""
+    try:
+        subprocess.run(["sync"], check=True)
+        Path("/proc/sys/vm/drop_caches").write_text("3\n")
+        return True
+    except OSError:
+        return False
+
+
+def timed(code, *argv, cold=False):
     """Wall time [s] and peak RSS [MB] of ``python -c code argv...`` in its own process (its own
     ``ru_maxrss``, printed by the process itself as it exits)."""
     wrapped = code + "\nimport resource\nprint('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+    if cold and not drop_caches():
+        raise SystemExit("--cold: cannot drop the page cache here (needs root on Linux)")
     t0 = time.perf_counter()
     out = subprocess.run([sys.executable, "-c", wrapped, *map(str, argv)], capture_output=True, text=True)
     if out.returncode:
@@ -132,6 +144,9 @@ def main():
     ap.add_argument("--gb", type=float, default=1.0)
     ap.add_argument("--rate", type=float, default=10000.0)
     ap.add_argument("--keep", metavar="DIR", help="write the file here and keep it")
+    ap.add_argument("--cold", action="store_true", help="drop the page cache before each timed process (root)")
+    ap.add_argument("--source", choices=("channel", "signal"), default="channel",
+                    help="where the dwells' frequencies come from: the drive channel or the base signal itself")
     args = ap.parse_args()
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="sbcal-import-"))
     root.mkdir(parents=True, exist_ok=True)
@@ -140,15 +155,19 @@ def main():
     n = write_file(path, args.gb, args.rate)
     print(f"wrote {path}: {path.stat().st_size / 2**30:.2f} GiB, {n} samples x {len(CHANNELS)} channels at "
           f"{args.rate:g} Hz ({n / args.rate / 60:.0f} min), {time.perf_counter() - t0:.0f} s")
-    (root / "channels.toml").write_text(MAP)
+    cmap = MAP if args.source == "channel" else MAP.replace('source = "channel"\nchannel = "Drive frequency"',
+                                                             'source = "signal"')
+    (root / "channels.toml").write_text(cmap)
     # each in a fresh process
-    base_s, base_mb = timed(BASELINE, path)
-    imp_s, imp_mb = timed(IMPORT, path, root / "channels.toml", root / "out.csv")
+    base_s, base_mb = timed(BASELINE, path, cold=args.cold)
+    imp_s, imp_mb = timed(IMPORT, path, root / "channels.toml", root / "out.csv", cold=args.cold)
     import pandas as pd
 
     out = pd.read_csv(root / "out.csv")
     h = out["stiffness_n_per_m"] * np.exp(1j * np.radians(out["phase_deg"]))
     err = np.abs(h / truth(out["frequency_hz"].to_numpy()) - 1)
+    print(f"dwell frequencies from the {'drive channel' if args.source == 'channel' else 'base signal'}")
+    print(f"page cache: {'dropped before each (cold reads)' if args.cold else 'warm (the file just written)'}")
     print(f"baseline (read every channel once): {base_s:.1f} s, peak {base_mb:.0f} MB")
     print(f"sbcal import: {imp_s:.1f} s ({imp_s / base_s:.1f} x the baseline), peak {imp_mb:.0f} MB; "
           f"{len(out)} lines, worst |h / truth - 1| {err.max():.1e}")

@@ -216,3 +216,36 @@ def test_a_missing_file_and_a_bad_map(files, tmp_path, capsys):
     cmap = tmp_path / "channels.toml"
     cmap.write_text((files / "channels.toml").read_text().replace('source = "channel"', 'source = "radio"'))
     _refused(capsys, tmp_path, [files / "run1.tdms"], cmap, "source")
+
+
+def test_uff_frfs_become_runs(files, tmp_path):
+    """Two accelerance FRFs (UFF 58) import as two runs of ready lines, without measured columns."""
+    from .test_import_sources import stiffness, write_uff
+
+    w = 2 * np.pi
+    write_uff(tmp_path / "frf.uff", [(12, 13, lambda f: -(w * f) ** 2 / stiffness(f), {}),
+                                     (12, 13, lambda f: -(w * f) ** 2 / stiffness(f), {})])
+    cmap = tmp_path / "channels.toml"
+    cmap.write_text((files / "channels.toml").read_text()
+                    .replace('damper = {property = "damper"}', 'damper = "damper1"')
+                    .replace('test = {property = "test"}', 'test = "2-2"').replace('run = {property = "run"}\n', "")
+                    .replace('[amplitude]\nchannel = "Drive amplitude"', '[amplitude]\nmm_pp = 2.0'))
+    out = tmp_path / "out.csv"
+    assert main(["import", str(tmp_path / "frf.uff"), "--map", str(cmap), "-o", str(out), "--quiet"]) == 0
+    frame = pd.read_csv(out)
+    assert sorted(frame["run"].unique()) == [1, 2] and (frame["amplitude_mm_pp"] == 2.0).all()
+    h = frame["stiffness_n_per_m"] * np.exp(1j * np.radians(frame["phase_deg"]))
+    np.testing.assert_allclose(h, stiffness(frame["frequency_hz"].to_numpy()), rtol=1e-5)
+    assert frame["stiffness_se_n_per_m"].isna().all()
+
+
+def test_an_amplitude_off_the_request_is_a_warning(clean, files, tmp_path, capsys):
+    """The shaker reached 2 mm where 2.5 were asked (the drive amplitude channel says 2.5): kept, warned."""
+    raw = _variant(clean, tmp_path, **{"Drive amplitude": clean.channels["Drive amplitude"] * 1.25})
+    out = tmp_path / "out.csv"
+    assert main(["import", str(raw), "--map", str(files / "channels.toml"), "-o", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("sbcal: warning:") == F.size and "2 mm p-p achieved, 2.5 requested" in err
+    frame = pd.read_csv(out)
+    assert (frame["amplitude_mm_pp"] == 2.5).all()
+    np.testing.assert_allclose(frame["amplitude_achieved_mm_pp"], 2.0, rtol=1e-6)

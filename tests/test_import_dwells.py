@@ -1,4 +1,4 @@
-"""Dwell analysis of raw stepped-sine recordings (sbcal.data.acquisition.dwells): exact first harmonics on whole
+"""Dwell analysis of raw stepped-sine recordings (sbcal.data.acquisition.dwells and .lines): exact first harmonics on whole
 periods, settling, honest standard errors, distortion, finding dwells, clipping."""
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from sbcal.data.acquisition.dwells import (DwellLine, Unsettled, analyse_dwell, clipped, dwells_from_channel,
-                                           dwells_from_signal, dwells_from_steps)
+from sbcal.data.acquisition.dwells import dwells_from_channel, dwells_from_signal, dwells_from_steps
+from sbcal.data.acquisition.lines import DwellLine, Unsettled, analyse_dwell, clipped
 
 H_TRUE = 2.0e4 * np.exp(0.4j)     # N/m
 X1 = 1.0e-3 * np.exp(0.3j)        # m

@@ -10,6 +10,7 @@ import pandas as pd
 
 from .bench import BenchData
 from .cleaning import DEFAULT_Z_THRESHOLD, _check_threshold, quality_table, remove_outlier_runs
+from .noise import noise_model
 
 
 __all__ = ["CV_BANDS_HZ", "bench_summary", "summary_notes"]
@@ -54,7 +55,10 @@ def bench_summary(bench: BenchData, z_threshold: float = DEFAULT_Z_THRESHOLD) ->
         undefined), ``cv_median_pct`` = ``{"raw"|"clean": {"magnitude"|"phase": {band: median
         CV [%] or None}}}`` over :data:`CV_BANDS_HZ`, ``branches`` (:meth:`Branches.as_dict`) and
         ``unmatched`` (``[{"run", "frequency_hz", "nearest_line_hz"}]``, values left out because
-        they match no line). JSON-serialisable.
+        they match no line); where the file has measured columns, ``measured``: ``{"values", "se_logmag_median",
+        "se_phase_median_deg", "distortion_max", "distortion_max_hz", "noise_lines"}`` (values measured; medians of
+        the standard errors [1] and [deg]; the largest force distortion [1] and its line; lines where the
+        measured error sets the noise model's sigma). JSON-serialisable.
     """
     z = _check_threshold(z_threshold)
     out = {}
@@ -81,7 +85,28 @@ def bench_summary(bench: BenchData, z_threshold: float = DEFAULT_Z_THRESHOLD) ->
                 "branches": cleaned.branches.as_dict(),
                 "unmatched": [{"run": r, "frequency_hz": f, "nearest_line_hz": c} for r, f, c in t.unmatched],
             }
+            if t.se_logmag is not None or t.distortion is not None:
+                out[damper][label]["measured"] = _measured(t, cleaned.data)
     return out
+
+
+def _measured(t, kept) -> dict:
+    """What the measured columns say of a test (:func:`bench_summary`'s ``measured``)."""
+    se_l = t.se_logmag if t.se_logmag is not None else np.full(t.magnitude.shape, np.nan)
+    se_p = t.se_phase if t.se_phase is not None else np.full(t.magnitude.shape, np.nan)
+    dist = t.distortion if t.distortion is not None else np.full(t.magnitude.shape, np.nan)
+    have = np.isfinite(se_l) | np.isfinite(dist)
+    worst = np.nanmax(dist, axis=0, initial=-np.inf, where=np.isfinite(dist))
+    k = int(np.argmax(worst)) if np.isfinite(worst).any() else None
+    return {
+        "values": int(have.sum()),
+        "se_logmag_median": _none_if_nan(np.median(se_l[np.isfinite(se_l)])) if np.isfinite(se_l).any() else None,
+        "se_phase_median_deg": (_none_if_nan(np.degrees(np.median(se_p[np.isfinite(se_p)])))
+                                if np.isfinite(se_p).any() else None),
+        "distortion_max": None if k is None else float(worst[k]),
+        "distortion_max_hz": None if k is None else float(t.freq_hz[k]),
+        "noise_lines": int(noise_model(kept).measured.sum()),
+    }
 
 
 def summary_notes(entry: dict) -> list[str]:
@@ -94,6 +119,14 @@ def summary_notes(entry: dict) -> list[str]:
         minority, majority = b["runs"]
         notes.append(f"two response branches at {lines} Hz: runs {','.join(map(str, minority))} vs "
                      f"{len(majority)} others; both branches kept (a run is judged within its branch)")
+    m = entry.get("measured")
+    if m:
+        se = ("" if m["se_logmag_median"] is None else
+              f"standard errors (median) {100 * m['se_logmag_median']:.3g} % / {m['se_phase_median_deg']:.3g} deg, "
+              f"setting the noise on {m['noise_lines']} line(s); ")
+        dist = ("" if m["distortion_max"] is None else
+                f"force distortion up to {100 * m['distortion_max']:.3g} % ({m['distortion_max_hz']:g} Hz)")
+        notes.append(f"measured ({m['values']} values): {se}{dist}".rstrip("; "))
     if entry.get("unmatched"):
         vals = ", ".join(f"run {u['run']} at {u['frequency_hz']:g} Hz (line {u['nearest_line_hz']:g})"
                          for u in entry["unmatched"][:5])

@@ -22,7 +22,7 @@ __all__ = ["Label", "Sensor", "Step", "FrequencySource", "Analysis", "ChannelMap
            "check_units"]
 
 FREQUENCY_SOURCES = ("property", "table", "channel", "signal")
-_BASE_QUANTITIES = QUANTITIES[1:]
+_BASE_QUANTITIES = QUANTITIES[1:]  # what the base channel may measure
 _HZ = ("hz", "1/s", "s-1", "s^-1")  # spellings of the frequency channel's unit
 
 

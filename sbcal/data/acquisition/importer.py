@@ -21,12 +21,17 @@ from ...core.errors import InputError
 from ...core.progress import progress_bar
 from ..bench import BENCH_COLUMNS, FREQ_REL_TOL, MEASURED_COLUMNS
 from .channel_map import ChannelMap, check_units
-from .dwells import Dwell, DwellLine, analyse_dwell, clipped, dwells_from_channel, dwells_from_signal, dwells_from_steps
+from .dwells import Dwell, dwells_from_channel, dwells_from_signal, dwells_from_steps
+from .lines import DwellLine, analyse_dwell, clipped
 from .sources import open_blocks
 from .uff import read_uff_lines
 
 
-__all__ = ["ImportResult", "import_recordings", "write_import"]
+__all__ = ["AMPLITUDE_TOLERANCE", "UFF_EXTENSIONS", "ImportResult", "import_recordings", "write_import"]
+
+AMPLITUDE_TOLERANCE = 0.05
+"""An achieved base amplitude this far (relative) from the requested one is a warning (the line is kept: the
+model takes the amplitude requested, the file keeps both)."""
 
 UFF_EXTENSIONS = (".uff", ".unv")
 """Universal files: their FRFs (datasets 58) are lines already, taken as they are (no dwell to analyse)."""
@@ -166,8 +171,12 @@ def _block_lines(block, cmap: ChannelMap, labels: dict, warnings: list, bar) -> 
         if not isinstance(result, DwellLine):
             warnings.append(f"{_where(block)}: t = {dwell.start / block.rate_hz:.6g} s: {result.reason}: dropped")
             continue
-        step_amp = _step_amplitude(cmap, dwell, block.rate_hz)
-        rows.append(_row(labels, result, _requested_amplitude(block, cmap, dwell, step_amp)))
+        requested = _requested_amplitude(block, cmap, dwell, _step_amplitude(cmap, dwell, block.rate_hz))
+        row = _row(labels, result, requested)
+        if requested and abs(row["amplitude_achieved_mm_pp"] / requested - 1) > AMPLITUDE_TOLERANCE:
+            warnings.append(f"{at}: base amplitude {row['amplitude_achieved_mm_pp']:.4g} mm p-p achieved, "
+                            f"{requested:g} requested")
+        rows.append(row)
     return rows
 
 
