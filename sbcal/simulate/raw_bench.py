@@ -7,7 +7,7 @@ instead, laid out as a stepped sine on a data acquisition system's clock (``docs
 model. Per line ``k`` (frequency ``f``, ``omega = 2 pi f``, base amplitude ``x0``), from its start ``t_k``:
 
 1. the integration of :func:`sbcal.model.cable_time.time_response` (``keep_series``): the base ramped up
-   from rest over :data:`RAMP_PERIODS` periods, settled, ``P`` periods in all;
+   from rest over :data:`sbcal.simulate.virtual_bench.RAMP_PERIODS` periods, settled, ``P`` periods in all;
 2. ``hold_periods`` of steady state: the integration's last whole period repeated (periodic to its
    settling tolerance, 1e-5);
 3. a taper of the base amplitude to zero over :data:`TAPER_PERIODS` periods (the same C2 quintic as
@@ -41,17 +41,14 @@ from ..core._io import atomic_path
 from ..core.errors import InputError
 from ..core.progress import progress_bar
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
-from ..model.cable import CableModel
-from ..model.cable_time import time_response
 from ..model.damper import Damper
 from ..model.fem import STANDARD_GRID_HZ
-from ..model.hysteresis import law_for
-from .virtual_bench import (_HARMONICS, BENCH_SECTIONS, BENCH_ZONE_SECTIONS, BenchConfig, _defaults, _reclamping,
-                            _table_and_channels, test_amplitude)
+from .virtual_bench import (_HARMONICS, RAMP_PERIODS, BenchConfig, _defaults, _reclamping, _table_and_channels,
+                            integrate_slip, slip_law_params, test_amplitude)
 
 
 __all__ = [
-    "CHANNELS", "FORCE_SPLIT", "RAMP_PERIODS", "TAPER_PERIODS", "GROUP", "FORMATS", "RawRun", "iter_raw", "measure",
+    "CHANNELS", "FORCE_SPLIT", "TAPER_PERIODS", "GROUP", "FORMATS", "RawRun", "iter_raw", "measure",
     "record_raw", "truth_frame", "write_tdms", "write_hdf5", "write_raw", "write_channel_map",
 ]
 
@@ -61,9 +58,6 @@ CHANNELS = {"Force A": "N", "Force B": "N", "Table acceleration": "m/s^2", "Driv
 
 FORCE_SPLIT = {"Force A": 0.55, "Force B": 0.45}
 """The share of the base force each load cell carries (they sum to the force)."""
-
-RAMP_PERIODS = 8.0
-"""Periods of the base's ramp from rest (passed to ``time_response``: the time-domain bench's value)."""
 
 TAPER_PERIODS = 2
 """Periods of the base's taper to zero after the hold."""
@@ -165,32 +159,14 @@ def _check(config: BenchConfig, f, rate_hz, hold_periods, pause_s, noise, offset
 
 def _integrate(damper: Damper, config: BenchConfig, f, amp, run: dict, ej_scale: float, chi0_scale: float,
                label: str):
-    """``time_response`` of one run with the series kept: the bench's mapping of its parameters
+    """``time_response`` of one run with the series kept, its parameters mapped as the CSV bench maps them
     (:func:`sbcal.simulate.virtual_bench.response`, time domain)."""
     slip = config.effects["strand_slip"]
-    law = law_for(slip.law)
-    lp = slip.law_params(run["EJ"], damper.ej_static)
-    if np.any(np.asarray(lp["delta_EJ"]) <= 0):
-        raise InputError(f"strand_slip: EJ (the full-slip rigidity) must be below ej_static = {damper.ej_static:g} "
-                         "N m^2 (or give delta_EJ)")
-    lp["delta_EJ"] = lp["delta_EJ"] * ej_scale
-    lp[slip.scale_name] = lp[slip.scale_name] * chi0_scale
-    ej_min, beta = run["EJ"] * ej_scale, run["beta"]
-    if ej_min <= 0 or beta < 0:
-        raise InputError("strand_slip (time domain): EJ (the full-slip rigidity) must be > 0 and beta >= 0")
+    lp = slip_law_params(slip, damper, np.array([run["EJ"]]), ej_scale, chi0_scale)
     geometry = {k: v for k, v in run.items() if k not in ("EJ", "beta")}
-    model = CableModel(law, sections=BENCH_SECTIONS, zone_sections=BENCH_ZONE_SECTIONS)
-    r = time_response(model, damper, f, amp, steps_per_period=slip.steps_per_period, ramp=RAMP_PERIODS,
-                      n_harmonics=_HARMONICS, EJ_min=ej_min, beta_material=beta,
-                      rocking_rad_per_m=config.effects.get("base_rocking", 0.0), keep_series=True, **lp, **geometry)
-    bad = ~(r.converged & r.settled)[0]
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        why = ("a time step's Newton solve failed" if not r.converged[0, k] else
-               f"did not settle in {r.periods[0, k]} periods (first harmonic still changing by {r.change[0, k]:.2g} "
-               "per window)")
-        raise InputError(f"strand_slip (time domain): the line at {f[k]:g} Hz, {label}: {why}")
-    return r
+    return integrate_slip(damper, f, amp, slip, lp, ej_min=np.array([run["EJ"] * ej_scale]),
+                          beta=np.array([run["beta"]]), rocking=config.effects.get("base_rocking", 0.0),
+                          geometry=geometry, keep_series=True, label=label)
 
 
 def _smoothstep(u):
@@ -202,7 +178,8 @@ def _smoothstep(u):
 
 def _base(theta, x0, end_theta):
     """The commanded base motion of a line and its second derivative in theta at phase times ``theta``
-    [rad]: ``x0 env cos(theta)``, ``env`` the ramp up over :data:`RAMP_PERIODS` periods times the taper
+    [rad]: ``x0 env cos(theta)``, ``env`` the ramp up over
+    :data:`sbcal.simulate.virtual_bench.RAMP_PERIODS` periods times the taper
     down over :data:`TAPER_PERIODS` periods from ``end_theta`` (the end of the hold)."""
     up_span, down_span = 2 * np.pi * RAMP_PERIODS, 2 * np.pi * TAPER_PERIODS
     u, du, ddu = _smoothstep(theta / up_span)

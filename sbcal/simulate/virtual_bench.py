@@ -65,6 +65,7 @@ __all__ = [
     "BENCH_ELEMENTS",
     "BENCH_SECTIONS",
     "BENCH_ZONE_SECTIONS",
+    "RAMP_PERIODS",
     "SlipLaw",
     "CableZone",
     "FixtureResonance",
@@ -72,6 +73,8 @@ __all__ = [
     "parse_effect",
     "test_amplitude",
     "response",
+    "slip_law_params",
+    "integrate_slip",
     "record",
 ]
 
@@ -112,6 +115,10 @@ BENCH_SECTIONS = 16
 law's middle), richer than the fit's :data:`sbcal.model.cable.DEFAULT_SECTIONS`."""
 BENCH_ZONE_SECTIONS = 8
 """Gauss sections of each boundary zone of the time-domain bench's zoned law (the fit's default: 3)."""
+RAMP_PERIODS = 8.0
+"""Periods over which the time-domain bench ramps the base amplitude up from rest at every line (its C2 quintic:
+:func:`sbcal.model.cable_time.time_response`'s ``ramp``)."""
+
 _HARMONICS = 9  # the force's harmonics the time-domain bench analyses (time_response's default)
 # effects the time-domain bench refuses, and why: the fast cable has one loss factor and one EJ_min for
 # both arms, constant in frequency (a distorted force has harmonics at other frequencies than the line's)
@@ -587,7 +594,7 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
     tol, max_iter : float, int
         The strand-slip fixed point's tolerance (on ``ln chi``) and Newton budget per pass
         (:class:`sbcal.model.cable_element.ElementCableModel`); a line that does not converge is an InputError.
-        Not used by the time-domain strand slip (:func:`_slip_in_time`: a line that does not settle or
+        Not used by the time-domain strand slip (:func:`integrate_slip`: a line that does not settle or
         whose time steps fail is an InputError).
 
     Returns
@@ -626,20 +633,12 @@ def response(damper: Damper, freq_hz, amplitude_mm_pp, params: dict, effects: di
     if "strand_slip" in effects:
         slip = effects["strand_slip"]
         law = law_for(slip.law)
-        lp = slip.law_params(col["EJ"][:, 0], damper.ej_static)
-        if np.any(np.asarray(lp["delta_EJ"]) <= 0):
-            raise InputError(f"strand_slip: EJ (the full-slip rigidity) must be below ej_static = {damper.ej_static:g} N m^2 "
-                             "(or give delta_EJ)")
-        # re-clamping scatter scales the cable's rigidity as a whole (EJ_min and delta_EJ together)
-        # and the law's curvature scale; the frequency factor acts on the slipped strand
         scale = ej_scale[:, 0]
-        lp["delta_EJ"] = np.asarray(lp["delta_EJ"], dtype=float) * scale
-        lp[slip.scale_name] = lp[slip.scale_name] * np.asarray(chi0_scale, dtype=float).reshape(-1)
+        lp = slip_law_params(slip, damper, col["EJ"][:, 0], scale, chi0_scale)
         if slip.time_domain:  # no frequency factor or per-arm loss here: _check_time_domain refused them
-            fm = _slip_in_time(damper, f, amplitude_mm_pp, law, lp, steps_per_period=slip.steps_per_period,
-                               ej_min=(col["EJ"] * ej_scale)[:, 0], beta=col["beta"][:, 0], rocking=rocking,
-                               geometry=geometry)
-            return _table_and_channels(fm, omega, effects)
+            r = integrate_slip(damper, f, amplitude_mm_pp, slip, lp, ej_min=(col["EJ"] * ej_scale)[:, 0],
+                               beta=col["beta"][:, 0], rocking=rocking, geometry=geometry)
+            return _table_and_channels(r.f_uu, omega, effects)
         ej = col["EJ"] * ej_scale * factor
         linear = np.stack(np.broadcast_arrays(ej * (1 + 1j * b1), ej * (1 + 1j * b2)), axis=-1)
         model = ElementCableModel(law, n_elements=int(slip.elements), tol=tol, max_iter=max_iter, zones=slip.zones)
@@ -687,13 +686,43 @@ def _check_time_domain(params: dict, effects: dict):
                              f"(its cable has one constant loss factor and EJ for both arms, not {what})")
 
 
-def _slip_in_time(damper: Damper, freq_hz, amplitude_mm_pp, law, law_params: dict, *, steps_per_period: int,
-                  ej_min, beta, rocking, geometry: dict) -> np.ndarray:
-    """The time-domain strand slip: ``f_uu`` of the fast cable integrated from rest, as a shaker records it.
+def slip_law_params(slip: SlipLaw, damper: Damper, ej, ej_scale, chi0_scale) -> dict:
+    """The strand slip law's parameters for parameter sets: the law's own (:meth:`SlipLaw.law_params`) with the
+    re-clamping scatter, which scales the cable's rigidity as a whole (``EJ_min`` and ``delta_EJ`` together) and
+    the law's curvature scale.
+
+    Parameters
+    ----------
+    slip : SlipLaw
+    damper : Damper
+    ej : ndarray, shape (n_sets,)
+        The full-slip rigidity ``EJ`` [N m^2] before the scatter.
+    ej_scale, chi0_scale : float or ndarray, shape (n_sets,)
+        Scatter factors (:func:`response`).
+
+    Raises
+    ------
+    InputError
+        ``EJ`` at or above ``ej_static`` without a ``delta_EJ``.
+    """
+    lp = slip.law_params(ej, damper.ej_static)
+    if np.any(np.asarray(lp["delta_EJ"]) <= 0):
+        raise InputError(f"strand_slip: EJ (the full-slip rigidity) must be below ej_static = {damper.ej_static:g} N m^2 "
+                         "(or give delta_EJ)")
+    lp["delta_EJ"] = np.asarray(lp["delta_EJ"], dtype=float) * np.asarray(ej_scale, dtype=float).reshape(-1)
+    lp[slip.scale_name] = lp[slip.scale_name] * np.asarray(chi0_scale, dtype=float).reshape(-1)
+    return lp
+
+
+def integrate_slip(damper: Damper, freq_hz, amplitude_mm_pp, slip: SlipLaw, law_params: dict, *, ej_min, beta,
+                   rocking, geometry: dict, keep_series: bool = False, label: str | None = None):
+    """The time-domain strand slip: the fast cable integrated from rest, as a shaker records it.
 
     Every parameter set and line is one integration of :func:`sbcal.model.cable_time.time_response` (all
     in one call: the runs of a test are its parameter sets) on :class:`sbcal.model.cable.CableModel` with
-    :data:`BENCH_SECTIONS` sections per arm (:data:`BENCH_ZONE_SECTIONS` per zone of a zoned law).
+    :data:`BENCH_SECTIONS` sections per arm (:data:`BENCH_ZONE_SECTIONS` per zone of a zoned law). The CSV
+    bench takes its first harmonics (:func:`response`), the raw bench its samples
+    (:mod:`sbcal.simulate.raw_bench`).
 
     Parameters
     ----------
@@ -702,23 +731,26 @@ def _slip_in_time(damper: Damper, freq_hz, amplitude_mm_pp, law, law_params: dic
         Lines [Hz].
     amplitude_mm_pp : float or array_like, shape (n_freq,)
         Base amplitude per line [mm p-p].
-    law : HysteresisLaw
-        The strand slip's law (:func:`sbcal.model.hysteresis.law_for` of :attr:`SlipLaw.law`; zoned or not).
+    slip : SlipLaw
+        The law (its ``steps_per_period``).
     law_params : dict
-        The law's parameters with the re-clamping scatter applied, scalars or shape (n_sets,).
-    steps_per_period : int
-        Time steps per period (:attr:`SlipLaw.steps_per_period`).
+        The law's parameters with the re-clamping scatter applied (:func:`slip_law_params`), scalars or shape
+        (n_sets,).
     ej_min, beta : ndarray, shape (n_sets,) or (1,)
         Full-slip rigidity [N m^2] (scatter applied) and material loss factor [1].
     rocking : float
         Base rocking [rad/m].
     geometry : dict
         Geometry overrides of :data:`sbcal.model.damper.GEOMETRY`, scalars or shape (n_sets,).
+    keep_series : bool
+        Keep the samples (``time_response``'s ``keep_series``).
+    label : str, optional
+        What a parameter set is, for messages (default ``"parameter set i"``).
 
     Returns
     -------
-    ndarray of complex, shape (n_sets, n_freq)
-        First harmonic of the base force over the base motion [N/m], last window.
+    TimeResponse
+        ``f_uu`` (n_sets, n_freq): the first harmonic of the base force over the base motion [N/m], last window.
 
     Raises
     ------
@@ -726,20 +758,21 @@ def _slip_in_time(damper: Damper, freq_hz, amplitude_mm_pp, law, law_params: dic
         ``EJ <= 0`` or ``beta < 0``; a line that did not settle in the periods allowed or whose time steps
         failed (named: never used).
     """
-    if np.any(ej_min <= 0) or np.any(beta < 0):
+    if np.any(np.asarray(ej_min) <= 0) or np.any(np.asarray(beta) < 0):
         raise InputError("strand_slip (time domain): EJ (the full-slip rigidity) must be > 0 and beta >= 0")
-    model = CableModel(law, sections=BENCH_SECTIONS, zone_sections=BENCH_ZONE_SECTIONS)
-    r = time_response(model, damper, freq_hz, amplitude_mm_pp, steps_per_period=steps_per_period,
-                      n_harmonics=_HARMONICS, EJ_min=ej_min, beta_material=beta, rocking_rad_per_m=rocking,
-                      **law_params, **geometry)
+    model = CableModel(law_for(slip.law), sections=BENCH_SECTIONS, zone_sections=BENCH_ZONE_SECTIONS)
+    r = time_response(model, damper, freq_hz, amplitude_mm_pp, steps_per_period=slip.steps_per_period,
+                      ramp=RAMP_PERIODS, n_harmonics=_HARMONICS, EJ_min=ej_min, beta_material=beta, rocking_rad_per_m=rocking,
+                      keep_series=keep_series, **law_params, **geometry)
     bad = ~(r.converged & r.settled)
     if bad.any():
         i, k = np.argwhere(bad)[0]
         why = ("a time step's Newton solve failed" if not r.converged[i, k] else
                f"did not settle in {r.periods[i, k]} periods (first harmonic still changing by {r.change[i, k]:.2g} "
                "per window)")
-        raise InputError(f"strand_slip (time domain): the line at {freq_hz[k]:g} Hz, parameter set {i}: {why}")
-    return r.f_uu
+        raise InputError(f"strand_slip (time domain): the line at {freq_hz[k]:g} Hz, "
+                         f"{label or f'parameter set {i}'}: {why}")
+    return r
 
 
 # --- the bench ---------------------------------------------------------------------------------
