@@ -249,3 +249,15 @@ def test_an_amplitude_off_the_request_is_a_warning(clean, files, tmp_path, capsy
     frame = pd.read_csv(out)
     assert (frame["amplitude_mm_pp"] == 2.5).all()
     np.testing.assert_allclose(frame["amplitude_achieved_mm_pp"], 2.0, rtol=1e-6)
+
+
+def test_the_readme_channel_map_reads(tmp_path):
+    """The README's example map (the first ```toml block after "sbcal import") is a valid map."""
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    block = text[text.index("```toml", text.index("## From the lab's raw files")) + 7:]
+    (tmp_path / "channels.toml").write_text(block[:block.index("```")])
+    cmap = load_channel_map(tmp_path / "channels.toml")
+    assert cmap.force.channels == ("Force A", "Force B") and cmap.base.quantity == "acceleration"
+    assert cmap.frequency.source == "channel" and cmap.amplitude.value == 2.0
