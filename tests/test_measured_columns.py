@@ -163,3 +163,17 @@ def test_a_test_of_fewer_lines_than_the_pooling_window_is_summarised(tmp_path):
     text = "\n".join(",".join(line.split(",")[:7]) for line in _rows(freqs=(4.0, 5.0)).splitlines()) + "\n"
     s = bench_summary(load_bench(_write(tmp_path, text)), 3.0)
     assert s["d"]["2-2"]["n_frequencies"] == 2
+
+
+def test_the_likelihood_of_a_single_imported_run_uses_its_measured_noise(damper1):
+    from sbcal.inference.calibrate import likelihood_for
+    from sbcal.inference.priors import load_prior
+
+    data = _single_run(0.01, 0.02, dof=29)
+    data = TestData(data.damper, data.test, data.runs, data.freq_hz, data.amplitude_mm_pp, data.magnitude,
+                    data.phase_deg, se_logmag=data.se_logmag, se_phase=data.se_phase, se_dof=data.se_dof,
+                    distortion=np.full(data.magnitude.shape, 0.07))
+    lk = likelihood_for(damper1, data, load_prior("theta1", damper1))
+    np.testing.assert_allclose(lk.sigma, [[0.01] * 5, [0.02] * 5])
+    np.testing.assert_allclose(lk.nu, 29.0)  # the measured error's degrees of freedom (one run: none of its own)
+    np.testing.assert_allclose(lk.measured_distortion, 0.07)

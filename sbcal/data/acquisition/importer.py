@@ -54,17 +54,13 @@ class ImportResult:
     warnings: tuple
 
 
-def _where(block) -> str:
-    return f"{block.source}" + (f": group {block.name!r}" if block.name else "")
-
-
 def _read(block, channel: str, start: int, stop: int) -> np.ndarray:
     """Samples [start, stop) of a channel, refused in one line if any is NaN or infinite."""
     x = block.read(channel, start, stop)
     bad = ~np.isfinite(x)
     if bad.any():
         i = start + int(np.argmax(bad))
-        raise InputError(f"{_where(block)}: channel {channel!r}: {x[i - start]} at sample {i} "
+        raise InputError(f"{block.where(channel)}: {x[i - start]} at sample {i} "
                          f"(t = {i / block.rate_hz:.6g} s): the recording holds NaN or infinite values")
     return x
 
@@ -80,7 +76,7 @@ def _dwells(block, cmap: ChannelMap) -> list:
             f = math.nan
         if not (math.isfinite(f) and f > 0):
             have = ", ".join(sorted(block.properties)) or "none"
-            raise InputError(f"{_where(block)}: property {src.property!r} (the dwell's frequency, [frequency] "
+            raise InputError(f"{block.where()}: property {src.property!r} (the dwell's frequency, [frequency] "
                              f"property): {'missing' if value is None else repr(value)}; properties: {have}")
         return [Dwell(0, n, f)]
     if src.source == "table":
@@ -91,25 +87,18 @@ def _dwells(block, cmap: ChannelMap) -> list:
     return dwells_from_signal(lambda a, b: _read(block, base, a, b), n, rate)
 
 
-def _signals(block, cmap: ChannelMap, dwell: Dwell, freq_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Force [N] (the channels summed) and base motion (SI) of one dwell, each raw channel checked for clipping."""
-    force = None
-    for sensor, kind in ((cmap.force, "force"), (cmap.base, "base")):
-        total = None
-        for ch in sensor.channels:
-            x = _read(block, ch, dwell.start, dwell.stop)
-            k = clipped(x, block.rate_hz, freq_hz, full_scale=sensor.range)
-            if k is not None:
-                i = dwell.start + k
-                raise InputError(f"{_where(block)}: channel {ch!r}: clipped at sample {i} (t = {i / block.rate_hz:.6g} s, "
-                                 f"the line at {freq_hz:g} Hz): the signal saturates the input range; record it "
-                                 "with a larger range")
-            total = x * sensor.si_factor if total is None else total + x * sensor.si_factor
-        if kind == "force":
-            force = total
-        else:
-            return force, total
-    raise AssertionError("unreachable")
+def _sensor(block, sensor, dwell: Dwell, freq_hz: float) -> np.ndarray:
+    """One sensor's signal over a dwell in SI units (its channels summed), each channel checked for clipping."""
+    total = np.zeros(dwell.stop - dwell.start)
+    for ch in sensor.channels:
+        x = _read(block, ch, dwell.start, dwell.stop)
+        k = clipped(x, block.rate_hz, freq_hz, full_scale=sensor.range)
+        if k is not None:
+            i = dwell.start + k
+            raise InputError(f"{block.where(ch)}: clipped at sample {i} (t = {i / block.rate_hz:.6g} s, the line at "
+                             f"{freq_hz:g} Hz): the signal saturates the input range; record it with a larger range")
+        total += x * sensor.si_factor
+    return total
 
 
 def _requested_amplitude(block, cmap: ChannelMap, dwell: Dwell, step_amplitude) -> float | None:
@@ -121,7 +110,7 @@ def _requested_amplitude(block, cmap: ChannelMap, dwell: Dwell, step_amplitude) 
         return float(np.median(_read(block, cmap.amplitude_channel, dwell.start, dwell.stop)))
     if cmap.amplitude is None or (cmap.amplitude.value is None and cmap.amplitude.property is None):
         return None
-    value = cmap.amplitude.resolve(block.properties, what=f"{_where(block)}: [amplitude]")
+    value = cmap.amplitude.resolve(block.properties, what=f"{block.where()}: [amplitude]")
     return float(value)
 
 
@@ -153,7 +142,7 @@ def _block_lines(block, cmap: ChannelMap, labels: dict, warnings: list, bar) -> 
     for dwell in _dwells(block, cmap):
         nominal = dwell.freq_hz or dwell.estimate_hz  # a dwell found in the signal: its first estimate
         duration = (dwell.stop - dwell.start) / block.rate_hz
-        at = f"{_where(block)}: the dwell at {nominal:.4g} Hz (t = {dwell.start / block.rate_hz:.6g} s)"
+        at = f"{block.where()}: the dwell at {nominal:.4g} Hz (t = {dwell.start / block.rate_hz:.6g} s)"
         needed = a.min_windows * a.window_periods
         if duration * nominal < needed:
             if cmap.frequency.source == "signal":
@@ -162,14 +151,14 @@ def _block_lines(block, cmap: ChannelMap, labels: dict, warnings: list, bar) -> 
             raise InputError(f"{at}: {duration:.3g} s holds {duration * nominal:.3g} periods, {needed} needed "
                              f"({a.min_windows} windows of {a.window_periods}); record longer dwells or lower "
                              "[analysis] min_windows / window_periods")
-        force, base = _signals(block, cmap, dwell, nominal)
+        force, base = (_sensor(block, sensor, dwell, nominal) for sensor in (cmap.force, cmap.base))
         result = analyse_dwell(force, base, block.rate_hz, dwell.freq_hz, freq_guess_hz=dwell.estimate_hz,
                                quantity=cmap.base.quantity,
                                window_periods=a.window_periods, min_windows=a.min_windows,
                                settle_tolerance=a.settle_tolerance, harmonics=a.harmonics)
         bar.update(dwell.stop - dwell.start)
         if not isinstance(result, DwellLine):
-            warnings.append(f"{_where(block)}: t = {dwell.start / block.rate_hz:.6g} s: {result.reason}: dropped")
+            warnings.append(f"{block.where()}: t = {dwell.start / block.rate_hz:.6g} s: {result.reason}: dropped")
             continue
         requested = _requested_amplitude(block, cmap, dwell, _step_amplitude(cmap, dwell, block.rate_hz))
         row = _row(labels, result, requested)
@@ -181,7 +170,7 @@ def _block_lines(block, cmap: ChannelMap, labels: dict, warnings: list, bar) -> 
 
 
 def _labels(block, cmap: ChannelMap, default_run: int) -> dict:
-    where = _where(block)
+    where = block.where()
     damper = cmap.damper.resolve(block.properties, what=f"{where}: [labels] damper")
     test = cmap.test.resolve(block.properties, what=f"{where}: [labels] test")
     run = default_run if cmap.run is None else cmap.run.resolve(block.properties, what=f"{where}: [labels] run")
@@ -217,9 +206,11 @@ def _uff_rows(p: Path, cmap: ChannelMap, first_run: int) -> list[dict]:
 class _Props:
     """What :func:`_labels` needs of a record: where it is (for messages) and its properties."""
 
-    source: str
+    place: str
     properties: dict
-    name: str = ""
+
+    def where(self) -> str:
+        return self.place
 
 
 def _read_files(paths, cmap: ChannelMap, warnings: list, what: str, quiet: bool) -> list[dict]:
@@ -288,8 +279,7 @@ def _subtract_fixture(frame: pd.DataFrame, fixture: pd.DataFrame, warnings: list
     line_s = np.sqrt(np.bincount(group, fs ** 2)) / n
 
     f = frame["frequency_hz"].to_numpy()
-    j = np.clip(np.searchsorted(line_f, f), 1, line_f.size - 1) if line_f.size > 1 else np.zeros(f.size, int)
-    j = np.where(np.abs(line_f[j - 1] - f) < np.abs(line_f[j] - f), j - 1, j) if line_f.size > 1 else j
+    j = np.abs(f[:, None] - line_f[None, :]).argmin(axis=1)  # the nearest fixture line (tens of lines)
     ok = np.abs(line_f[j] - f) <= FREQ_REL_TOL * f
     for i in np.flatnonzero(~ok):
         r = frame.iloc[i]
