@@ -261,3 +261,59 @@ def test_the_readme_channel_map_reads(tmp_path):
     cmap = load_channel_map(tmp_path / "channels.toml")
     assert cmap.force.channels == ("Force A", "Force B") and cmap.base.quantity == "acceleration"
     assert cmap.frequency.source == "channel" and cmap.amplitude.value == 2.0
+
+
+# --- the other frequency sources: the same lines -------------------------------------------------------
+
+def _map_with(files, tmp_path, frequency: str, labels=True):
+    text = (files / "channels.toml").read_text()
+    head, tail = text.split("[frequency]")
+    tail = tail[tail.index("[amplitude]"):]
+    if not labels:
+        head = head.replace('run = {property = "run"}\n', "")
+    (tmp_path / "channels.toml").write_text(head + "[frequency]\n" + frequency + "\n\n" + tail)
+    return tmp_path
+
+
+def test_dwells_found_in_the_signal_give_the_same_lines(files, clean, tmp_path):
+    """No drive channel: the frequencies estimated from the table acceleration itself."""
+    root = _map_with(files, tmp_path, 'source = "signal"')
+    frame = _imported(files / "run1.tdms", root)
+    np.testing.assert_allclose(frame["frequency_hz"], F, rtol=1e-6)
+    rel, deg = _errors(frame, clean)
+    assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05
+
+
+def test_a_step_table_gives_the_same_lines(files, clean, tmp_path):
+    """The steps start at each line's start; a step runs into the next one's (its taper and the pause are
+    dropped as the drive tapering off)."""
+    steps = "\n".join(f"{float(s)!r},{float(f)!r}" for s, f in zip(clean.start_s, F))
+    (tmp_path / "steps.csv").write_text("start_s,frequency_hz\n" + steps + "\n")
+    root = _map_with(files, tmp_path, 'source = "table"\ntable = "steps.csv"')
+    frame = _imported(files / "run1.tdms", root)
+    np.testing.assert_allclose(frame["frequency_hz"], F)
+    rel, deg = _errors(frame, clean)
+    assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05
+
+
+def test_one_group_per_dwell_with_its_frequency_property(clean, files, tmp_path):
+    """An HDF5 file holding each dwell as its own group (attribute frequency_hz), as some loggers save a stepped
+    sine: one file is one run."""
+    import h5py
+
+    with h5py.File(tmp_path / "dwells.h5", "w") as h5:
+        h5.attrs.update(damper="damper1", test="2-2")
+        for k, f in enumerate(F):
+            lo, hi = (np.ceil(np.array([clean.start_s[k], clean.hold_s[k, 1]]) * clean.rate_hz)).astype(int)
+            g = h5.create_group(f"dwell{k:02d}")
+            g.attrs.update(frequency_hz=f, sample_rate_hz=clean.rate_hz)
+            for name in ("Force A", "Force B", "Table acceleration"):
+                g.create_dataset(name, data=clean.channels[name][lo:hi]).attrs["unit"] = clean.units[name]
+    root = _map_with(files, tmp_path, 'source = "property"\nproperty = "frequency_hz"', labels=False)
+    text = (root / "channels.toml").read_text().replace('[amplitude]\nchannel = "Drive amplitude"',
+                                                        "[amplitude]\nmm_pp = 2.0")
+    (root / "channels.toml").write_text(text)
+    frame = _imported(tmp_path / "dwells.h5", root)
+    assert (frame["run"] == 1).all()
+    rel, deg = _errors(frame, clean)
+    assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05
