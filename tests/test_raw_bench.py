@@ -75,7 +75,8 @@ def test_truth_is_the_csv_benchs_reading_of_the_same_draws(damper1, clean):
     # is the held period's first harmonic, the CSV bench's the last 4-period window's: a settling gap
     frame = record(damper1, CONFIG, [TEST], rng=np.random.default_rng(5), freq_hz=F)
     truth = truth_frame(clean)
-    assert list(truth.columns) == list(BENCH_COLUMNS) and truth.run.tolist() == [1, 1, 1, 2, 2, 2]
+    assert list(truth.columns) == list(BENCH_COLUMNS) + ["distortion"] and truth.run.tolist() == [1, 1, 1, 2, 2, 2]
+    np.testing.assert_allclose(truth.distortion, np.concatenate([r.distortion for r in clean]))
     np.testing.assert_allclose(truth.stiffness_n_per_m, frame.stiffness_n_per_m, rtol=5e-4)
     np.testing.assert_allclose(truth.phase_deg, frame.phase_deg, atol=0.03)
     assert np.abs(truth.stiffness_n_per_m[:3].to_numpy() / truth.stiffness_n_per_m[3:].to_numpy() - 1).max() > 1e-3

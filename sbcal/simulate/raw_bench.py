@@ -394,10 +394,14 @@ def record_raw(damper: Damper, config: BenchConfig, test: str, **options) -> lis
 
 
 def truth_frame(runs) -> pd.DataFrame:
-    """The truth lines of raw runs (:attr:`RawRun.f_uu`) as bench CSV rows (:data:`BENCH_COLUMNS`)."""
-    frames = [curves_to_frame(r.damper, r.test, r.freq_hz, r.amplitude_mm_pp, r.f_uu[None, :], runs=[r.run])
-              for r in runs]
-    return pd.concat(frames, ignore_index=True)[list(BENCH_COLUMNS)]
+    """The truth lines of raw runs (:attr:`RawRun.f_uu`) as bench CSV rows: :data:`BENCH_COLUMNS` and the force's
+    ``distortion`` (:attr:`RawRun.distortion`, one of the bench file's measured columns)."""
+    frames = []
+    for r in runs:
+        frame = curves_to_frame(r.damper, r.test, r.freq_hz, r.amplitude_mm_pp, r.f_uu[None, :], runs=[r.run])
+        frame["distortion"] = r.distortion
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)[list(BENCH_COLUMNS) + ["distortion"]]
 
 
 # --- files -------------------------------------------------------------------------------------
