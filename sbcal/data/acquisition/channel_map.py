@@ -15,14 +15,13 @@ from pathlib import Path
 
 from ...core._io import read_toml
 from ...core.errors import InputError
-from .units import QUANTITIES, known_units, parse_unit, same_unit
+from .units import BASE_QUANTITIES, known_units, parse_unit, same_unit
 
 
 __all__ = ["Label", "Sensor", "Step", "FrequencySource", "Analysis", "ChannelMap", "load_channel_map",
            "check_units"]
 
 FREQUENCY_SOURCES = ("property", "table", "channel", "signal")
-_BASE_QUANTITIES = QUANTITIES[1:]  # what the base channel may measure
 _HZ = ("hz", "1/s", "s-1", "s^-1")  # spellings of the frequency channel's unit
 
 
@@ -296,12 +295,12 @@ def _sensor(path: str, doc, name: str) -> Sensor:
         if quantity != "force":
             raise s.error("unit", f"'{unit}' is not a force unit (known: {known_units('force')})")
     else:
-        if quantity not in _BASE_QUANTITIES and not s.has("quantity"):
+        if quantity not in BASE_QUANTITIES and not s.has("quantity"):
             raise s.error("unit", f"'{unit}' is a unit of {quantity}, not of base motion "
-                                  f"(known: {', '.join(known_units(q) for q in _BASE_QUANTITIES)})")
+                                  f"(known: {', '.join(known_units(q) for q in BASE_QUANTITIES)})")
         given = s.text("quantity", default=quantity)
-        if given not in _BASE_QUANTITIES:
-            raise s.error("quantity", f"'{given}' is not one of {', '.join(_BASE_QUANTITIES)}")
+        if given not in BASE_QUANTITIES:
+            raise s.error("quantity", f"'{given}' is not one of {', '.join(BASE_QUANTITIES)}")
         if quantity != given:
             raise s.error("unit", f"'{unit}' is not a unit of {given} (known: {known_units(given)})")
     sensitivity = s.number("sensitivity", 1.0, check=lambda x: x != 0, need="must not be 0")

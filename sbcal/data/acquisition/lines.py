@@ -20,12 +20,9 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import linalg, stats
 
-from .units import QUANTITIES
+from .units import BASE_QUANTITIES
 
-__all__ = ["BASE_QUANTITIES", "DwellLine", "Unsettled", "analyse_dwell", "clipped"]
-
-BASE_QUANTITIES = QUANTITIES[1:]
-"""What the base channel may measure: acceleration, velocity or displacement."""
+__all__ = ["DwellLine", "Unsettled", "analyse_dwell", "clipped"]
 
 _NYQUIST_USE = 0.45       # harmonics up to 0.45 fs: a DAS's anti-alias filter attenuates above that
 _MAX_BATCHES = 40         # batch means: 10-40 batches keep the t quantile near 2 and catch slow wander

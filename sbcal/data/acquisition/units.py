@@ -12,10 +12,13 @@ import math
 from ...core.errors import InputError
 
 
-__all__ = ["QUANTITIES", "parse_unit", "same_unit", "known_units"]
+__all__ = ["QUANTITIES", "BASE_QUANTITIES", "parse_unit", "same_unit", "known_units"]
 
 QUANTITIES = ("force", "acceleration", "velocity", "displacement")
 """The quantities a sensor may measure (force; base motion in one of the three others)."""
+
+BASE_QUANTITIES = QUANTITIES[1:]
+"""What the base channel may measure: acceleration, velocity or displacement."""
 
 _G = 9.80665  # standard gravity [m/s^2]
 _INCH = 0.0254  # [m]
