@@ -317,3 +317,15 @@ def test_one_group_per_dwell_with_its_frequency_property(clean, files, tmp_path)
     assert (frame["run"] == 1).all()
     rel, deg = _errors(frame, clean)
     assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05
+
+
+def test_load_cells_stored_in_volts_with_their_own_calibrations(clean, files, tmp_path):
+    """Force A stored in volts at 200 N/V, Force B at 150 N/V: one sensitivity per channel gives the same lines."""
+    raw = dataclasses.replace(clean, channels=dict(clean.channels, **{
+        "Force A": clean.channels["Force A"] / 200.0, "Force B": clean.channels["Force B"] / 150.0}))
+    write_tdms(tmp_path / "volts.tdms", raw)  # (the writer labels them N: the map below checks no file unit)
+    text = (files / "channels.toml").read_text().replace('unit = "N"', 'unit = "N"\nsensitivity = [200.0, 150.0]')
+    (tmp_path / "channels.toml").write_text(text)
+    frame = _imported(tmp_path / "volts.tdms", tmp_path)
+    rel, deg = _errors(frame, clean)
+    assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05

@@ -69,10 +69,10 @@ def test_docs_example_parses(tmp_path):
     cmap = load_channel_map(path)
     assert cmap == ChannelMap(
         path=str(path), damper=Label(value="damper1"), test=Label(property="test"), run=Label(property="run"),
-        force=Sensor(channels=("Force A", "Force B"), unit="N", sensitivity=1.0, file_unit="N", range=20000.0,
-                     quantity="force", si_factor=1.0),
-        base=Sensor(channels=("Table acceleration",), unit="m/s^2", sensitivity=1.0, file_unit="m/s^2",
-                    range=1000.0, quantity="acceleration", si_factor=1.0),
+        force=Sensor(channels=("Force A", "Force B"), unit="N", sensitivity=(1.0, 1.0), file_unit="N", range=20000.0,
+                     quantity="force", si_factor=(1.0, 1.0)),
+        base=Sensor(channels=("Table acceleration",), unit="m/s^2", sensitivity=(1.0,), file_unit="m/s^2",
+                    range=1000.0, quantity="acceleration", si_factor=(1.0,)),
         frequency=FrequencySource(source="channel", channel="Drive frequency"),
         amplitude=Label(property="amplitude_mm_pp"), amplitude_channel=None, analysis=Analysis())
     assert cmap.channels() == NAMES
@@ -104,9 +104,9 @@ def test_small_map_defaults(tmp_path):
     cmap = load_channel_map(write_map(tmp_path, force='channel = "F"\nunit = "kN"\nsensitivity = 2.0\n',
                                       base='channel = "x"\nunit = "mm"\n'))
     assert cmap.run is None and cmap.analysis == Analysis()
-    assert cmap.force == Sensor(channels=("F",), unit="kN", sensitivity=2.0, file_unit=None, range=None,
-                                quantity="force", si_factor=2000.0)
-    assert cmap.base.quantity == "displacement" and cmap.base.si_factor == 1e-3 and cmap.base.file_unit == "mm"
+    assert cmap.force == Sensor(channels=("F",), unit="kN", sensitivity=(2.0,), file_unit=None, range=None,
+                                quantity="force", si_factor=(2000.0,))
+    assert cmap.base.quantity == "displacement" and cmap.base.si_factor == (1e-3,) and cmap.base.file_unit == "mm"
     assert cmap.amplitude == Label(value=2.0) and cmap.amplitude_channel is None
 
 
@@ -141,6 +141,9 @@ def test_step_tables_inline_and_csv(tmp_path):
     ({"force": 'channels = ["A"]\nunit = "N"\nsensitivity = 0\n'}, "[force] sensitivity: must not be 0, got 0"),
     ({"force": 'channels = ["A"]\nunit = "N"\nsensitivity = "2"\n'}, "[force] sensitivity: expected a number"),
     ({"force": 'channels = ["A"]\nunit = "N"\nsensitivity = nan\n'}, "[force] sensitivity: must be finite"),
+    ({"force": 'channels = ["A", "B"]\nunit = "N"\nsensitivity = [1.0]\n'},
+     "[force] sensitivity: a list of 1 for 2 channel(s)"),
+    ({"force": 'channels = ["A", "B"]\nunit = "N"\nsensitivity = [1.0, 0]\n'}, "[force] sensitivity: must not be 0"),
     ({"force": 'channels = ["A"]\nunit = "N"\nrange = -1\n'}, "[force] range: must be > 0, got -1"),
     ({"force": 'channels = ["A"]\nunit = "N"\nfile_unit = ""\n'}, "[force] file_unit: expected a non-empty string"),
     ({"base": 'unit = "g"\n'}, "[base] channel: missing"),

@@ -77,25 +77,26 @@ class Sensor:
         Channel names; several force channels are summed (base motion has one).
     unit : str
         The unit of ``sensitivity * stored value``.
-    sensitivity : float
-        Multiplies the stored value (1 when the file holds physical values; negative flips the sign).
+    sensitivity : tuple of float
+        Multiplies each channel's stored value, one per channel (1 when the file holds physical values; negative
+        flips the sign): two load cells may have their own calibrations.
     file_unit : str or None
         The unit the file's own unit property must name; None: not checked.
     range : float or None
         The ADC full scale in stored units (clipping check); None: detected from flat tops.
     quantity : str
         ``"force"``, or the base motion: ``"acceleration"``, ``"velocity"``, ``"displacement"``.
-    si_factor : float
-        ``sensitivity`` times the unit's SI factor: stored value * si_factor is in N, m/s^2, m/s or m.
+    si_factor : tuple of float
+        Per channel, ``sensitivity`` times the unit's SI factor: stored value * si_factor is in N, m/s^2, m/s or m.
     """
 
     channels: tuple[str, ...]
     unit: str
-    sensitivity: float
+    sensitivity: tuple[float, ...]
     file_unit: str | None
     range: float | None
     quantity: str
-    si_factor: float
+    si_factor: tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -303,11 +304,20 @@ def _sensor(path: str, doc, name: str) -> Sensor:
             raise s.error("quantity", f"'{given}' is not one of {', '.join(BASE_QUANTITIES)}")
         if quantity != given:
             raise s.error("unit", f"'{unit}' is not a unit of {given} (known: {known_units(given)})")
-    sensitivity = s.number("sensitivity", 1.0, check=lambda x: x != 0, need="must not be 0")
-    file_unit = s.text("file_unit", default=unit if sensitivity == 1.0 else None)
+    sensitivity = _sensitivities(s, len(channels))
+    file_unit = s.text("file_unit", default=unit if all(v == 1.0 for v in sensitivity) else None)
     full_scale = s.number("range", check=_positive, need="must be > 0")
     return Sensor(channels=channels, unit=unit, sensitivity=sensitivity, file_unit=file_unit, range=full_scale,
-                  quantity=quantity, si_factor=sensitivity * factor)
+                  quantity=quantity, si_factor=tuple(v * factor for v in sensitivity))
+
+
+def _sensitivities(s: "_Section", n: int) -> tuple[float, ...]:
+    """``sensitivity``: one number for every channel, or a list of one per channel; never 0."""
+    v = s.doc.get("sensitivity", 1.0)
+    values = v if isinstance(v, list) else [v] * n
+    if isinstance(v, list) and len(v) != n:
+        raise s.error("sensitivity", f"a list of {len(v)} for {n} channel(s): give one per channel, or one number")
+    return tuple(_number(x, lambda x: x != 0, "must not be 0", lambda p: s.error("sensitivity", p)) for x in values)
 
 
 def _steps_from_rows(rows, error) -> tuple[Step, ...]:
@@ -506,7 +516,8 @@ def check_units(block, cmap: ChannelMap) -> None:
     for section, sensor in (("force", cmap.force), ("base", cmap.base)):
         if sensor.file_unit is None:
             continue
-        key = "file_unit" if sensor.sensitivity != 1.0 or sensor.file_unit != sensor.unit else "unit"
+        key = ("file_unit" if any(v != 1.0 for v in sensor.sensitivity) or sensor.file_unit != sensor.unit
+               else "unit")
         for channel in sensor.channels:
             unit = block.unit(channel)
             if unit and unit.strip() and not same_unit(unit, sensor.file_unit):

@@ -90,14 +90,14 @@ def _dwells(block, cmap: ChannelMap) -> list:
 def _sensor(block, sensor, dwell: Dwell, freq_hz: float) -> np.ndarray:
     """One sensor's signal over a dwell in SI units (its channels summed), each channel checked for clipping."""
     total = np.zeros(dwell.stop - dwell.start)
-    for ch in sensor.channels:
+    for ch, factor in zip(sensor.channels, sensor.si_factor):
         x = _read(block, ch, dwell.start, dwell.stop)
         k = clipped(x, block.rate_hz, freq_hz, full_scale=sensor.range)
         if k is not None:
             i = dwell.start + k
             raise InputError(f"{block.where(ch)}: clipped at sample {i} (t = {i / block.rate_hz:.6g} s, the line at "
                              f"{freq_hz:g} Hz): the signal saturates the input range; record it with a larger range")
-        total += x * sensor.si_factor
+        total += x * factor
     return total
 
 
