@@ -329,3 +329,26 @@ def test_load_cells_stored_in_volts_with_their_own_calibrations(clean, files, tm
     frame = _imported(tmp_path / "volts.tdms", tmp_path)
     rel, deg = _errors(frame, clean)
     assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05
+
+
+def test_a_frequency_written_on_each_channel_of_a_dwell_group(clean, files, tmp_path):
+    """A TDMS file of one group per dwell whose channels each carry the dwell's frequency (no group property)."""
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    with TdmsWriter(str(tmp_path / "dwells.tdms")) as w:
+        w.write_segment([RootObject({"damper": "damper1", "test": "2-2"})])
+        for k, f in enumerate(F):
+            lo, hi = (np.ceil(np.array([clean.start_s[k], clean.hold_s[k, 1]]) * clean.rate_hz)).astype(int)
+            props = {"wf_increment": 1 / clean.rate_hz, "Frequency": float(f)}
+            w.write_segment([GroupObject(f"dwell {k}")] + [
+                ChannelObject(f"dwell {k}", name, clean.channels[name][lo:hi],
+                              properties=dict(props, unit_string=clean.units[name]))
+                for name in ("Force A", "Force B", "Table acceleration")])
+    root = _map_with(files, tmp_path, 'source = "property"\nproperty = "Frequency"', labels=False)
+    text = (root / "channels.toml").read_text().replace('[amplitude]\nchannel = "Drive amplitude"',
+                                                        "[amplitude]\nmm_pp = 2.0")
+    (root / "channels.toml").write_text(text)
+    frame = _imported(tmp_path / "dwells.tdms", root)
+    np.testing.assert_allclose(frame["frequency_hz"], F)
+    rel, deg = _errors(frame, clean)
+    assert np.abs(rel).max() < 1e-3 and np.abs(deg).max() < 0.05

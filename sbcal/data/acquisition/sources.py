@@ -186,6 +186,21 @@ def _props(*layers) -> dict:
     return out
 
 
+_CHANNEL_OWN = ("wf_", "unit", "units", "nI_", "NI_", "sample_rate_hz")  # what describes a channel, not the record
+
+
+def _shared(channel_props) -> dict:
+    """The channel properties every channel of a block holds with one value (a stepped-sine logger that writes the
+    dwell's frequency on each channel): the block's properties at the lowest priority. Sampling, unit and NI
+    bookkeeping properties are the channels' own and are left out."""
+    layers = [{str(k): _plain(v) for k, v in props.items() if not str(k).startswith(_CHANNEL_OWN)}
+              for props in channel_props]
+    if not layers:
+        return {}
+    first, rest = layers[0], layers[1:]
+    return {k: v for k, v in first.items() if all(k in other and other[k] == v for other in rest)}
+
+
 def _time_scale(unit, where: str) -> float:
     """Seconds per unit of a time channel (no unit: seconds)."""
     u = "" if unit is None else str(unit).strip().lower()
@@ -287,7 +302,8 @@ def _tdms(path: Path, stack: ExitStack, time_channel: str, wanted) -> list[Block
             raise InputError(f"{where}, channel '{name}': no sampling rate (no wf_increment property and no "
                              f"'{time_channel}' channel)")
         units = {name: (c.properties.get("unit_string") or None) for name, c in numeric.items()}
-        blocks.append(Block(source=str(path), name=g.name, properties=_props(f.properties, g.properties),
+        shared = _shared(c.properties for c in numeric.values())
+        blocks.append(Block(source=str(path), name=g.name, properties=_props(shared, f.properties, g.properties),
                             rate_hz=rate, n_samples=n, units=units,
                             read=lambda name, a, b, chans=numeric: chans[name][a:b]))
     return blocks
@@ -323,12 +339,13 @@ def _hdf5(path: Path, stack: ExitStack, time_channel: str, wanted) -> list[Block
     for g in groups:
         name = g.name.lstrip("/")
         where = f"{path}, group '{name}'" if name else str(path)
-        chain = [f.attrs] + [f[p].attrs for p in _ancestors(g.name)]  # the file's, then each parent's, then its own
-        props = _props(*chain)
         datasets = _h5_channels(g, h5py)
         time = datasets.pop(time_channel, None)
         if not datasets or not wanted(name):
             continue
+        # the channels' shared attributes, then the file's, each parent's and the group's own
+        chain = [_shared(d.attrs for d in datasets.values()), f.attrs] + [f[p].attrs for p in _ancestors(g.name)]
+        props = _props(*chain)
         n = _same_length({k: d.shape[0] for k, d in datasets.items()}, where)
         rate = _h5_rate(datasets, props, time, n, where, time_channel)
         units = {k: _h5_unit(d) for k, d in datasets.items()}
