@@ -640,3 +640,13 @@ def test_uff_units_dataset_and_refusals(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pyuff", None)
     with pytest.raises(InputError, match=r'needs pyuff: pip install "sbcal\[uff\]"'):
         read_uff_lines(tmp_path / "mm.uff")
+
+
+def test_a_file_that_is_not_a_recording(tmp_path):
+    """Text in a .tdms file (npTDMS finds no segment): one line saying so, not an empty group list."""
+    pytest.importorskip("nptdms")
+    (tmp_path / "x.tdms").write_text("garbage\n")
+    with pytest.raises(InputError, match=r"x.tdms: no group with numeric channels: an empty recording, or not a "
+                                         r"\.tdms file"):
+        with open_blocks(tmp_path / "x.tdms"):
+            pass

@@ -143,7 +143,9 @@ def open_blocks(path, cmap=None):
 
         blocks = reader(p, stack, time_channel, wanted)
         if not blocks:
-            have = ", ".join(f"'{name}'" for name in seen) or "none with numeric channels"
+            if not seen:
+                raise InputError(f"{p}: no group with numeric channels: an empty recording, or not a {ext} file")
+            have = ", ".join(f"'{name}'" for name in seen)
             raise InputError(f"{p}: no group matches '{groups}' (groups: {have})")
         for b in blocks:
             for channel in ([] if cmap is None else cmap.channels()):
