@@ -14,7 +14,8 @@ def add_import(sub):
                                    "dwell, check it settled, and write its first harmonics as bench lines with the "
                                    "standard error from the period-to-period variation, the force's harmonic "
                                    "distortion and the amplitude achieved (docs/import.md).")
-    p.add_argument("raw", nargs="+", metavar="RAW", help="recordings: .tdms, .h5/.hdf5, .mf4/.mdf, .csv")
+    p.add_argument("raw", nargs="+", metavar="RAW",
+                   help="recordings: .tdms, .h5/.hdf5, .mf4/.mdf, .csv; .uff/.unv frequency response functions")
     p.add_argument("--map", required=True, metavar="CHANNELS.toml",
                    help="the channel map: force and base channels, units, the dwells' frequency source, labels")
     p.add_argument("--fixture", nargs="+", default=(), metavar="RAW",
