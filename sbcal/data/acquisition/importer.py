@@ -23,7 +23,7 @@ from ..bench import BENCH_COLUMNS, FREQ_REL_TOL, MEASURED_COLUMNS
 from .channel_map import ChannelMap, check_units
 from .dwells import Dwell, dwells_from_channel, dwells_from_signal, dwells_from_steps
 from .lines import DwellLine, analyse_dwell, clipped
-from .sources import open_blocks
+from .sources import EXTENSIONS, open_blocks
 from .uff import read_uff_lines
 
 
@@ -219,6 +219,8 @@ def _read_files(paths, cmap: ChannelMap, warnings: list, what: str, quiet: bool)
         p = Path(path)
         if not p.is_file():
             raise InputError(f"{p}: no such file" if not p.exists() else f"{p}: is not a file")
+        if p.suffix.lower() not in EXTENSIONS + UFF_EXTENSIONS:
+            raise InputError(f"{p}: unknown file type '{p.suffix}' (accepted: {', '.join(EXTENSIONS + UFF_EXTENSIONS)})")
         if p.suffix.lower() in UFF_EXTENSIONS:
             new = _uff_rows(p, cmap, record + 1)
             record += len({r["run"] for r in new})
