@@ -141,6 +141,13 @@ class TestData:
         """Whether any line carries a measured standard error."""
         return self.se_logmag is not None and bool(np.isfinite(self.se_logmag).any())
 
+    def line_distortion(self) -> np.ndarray | None:
+        """The measured force distortion per line: the median over the runs that have it, shape (n_freq,), NaN
+        where none does; None when nothing was measured."""
+        if self.distortion is None or not np.isfinite(self.distortion).any():
+            return None
+        return _nanmedian0(self.distortion)
+
     @property
     def present(self) -> np.ndarray:
         """Which (run, line) pairs were recorded: bool, shape (n_runs, n_freq)."""

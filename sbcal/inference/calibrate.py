@@ -40,20 +40,10 @@ def likelihood_for(damper: Damper, data, prior, *, model=None, fixed=None) -> Te
         As :class:`sbcal.inference.likelihood.TestLikelihood`.
     """
     noise = noise_model(data)
-    distortion = None
-    if data.distortion is not None and np.isfinite(data.distortion).any():
-        distortion = _nanmedian_runs(data.distortion)
     return TestLikelihood(damper, prior, data.freq_hz, data.magnitude, data.phase_deg, noise.sigma_logmag,
                           noise.sigma_phase, noise_dof=np.stack([noise.dof_logmag, noise.dof_phase]), fixed=fixed,
-                          model=model, amplitude_mm_pp=data.amplitude_mm_pp, measured_distortion=distortion)
-
-
-def _nanmedian_runs(a: np.ndarray) -> np.ndarray:
-    """Median over the runs (axis 0), NaN where no run has a value (no warning)."""
-    out = np.full(a.shape[1], np.nan)
-    have = np.isfinite(a).any(axis=0)
-    out[have] = np.nanmedian(a[:, have], axis=0)
-    return out
+                          model=model, amplitude_mm_pp=data.amplitude_mm_pp,
+                          measured_distortion=data.line_distortion())
 
 
 def test_likelihood(damper: Damper, data, test: str, *, paramset: str = "theta1", prior_path=None, model=None,
