@@ -1,19 +1,26 @@
-"""Cable forward-model speed: the fast model against the element model and SlipModel, same run.
+"""Cable forward-model speed: the fast model's compiled kernel beside its numpy formulation, the
+element model and SlipModel, same run.
 
-Usage: python benchmarks/cable.py [--sets 16 32] [--repeat 7] [--element-repeat 2] [--no-element]
+Usage: python benchmarks/cable.py [--sets 16 32] [--repeat 7] [--element-repeat 2] [--no-element] [--zoned]
 
 The workload the sampler sees: parameter sets x the thesis's eight dry tests concatenated on the
 frequency axis (8 x 37 = 296 lines, each test's amplitude per line), one core. For each model it
 prints the best wall time of one ``dynamic_stiffness`` call, evaluations (sets x lines) per second,
 and the ratio to the old one-element ``SlipModel`` (benchmarks/_slip_baseline.py) (one element per arm at its rms curvature, 12
-Illinois steps) measured in the same run. Target (the cable issue): <= 10 ms for 16 sets x 296
-lines. Then, for the fast model at the first ``--sets``, where the time goes: the compliance
-table, the one-compliance start, the Newton iterations (mean and largest count per entry) and the
-cost of one full residual evaluation (section lookups, moments, the 2x2 solves).
+Illinois steps) measured in the same run. ``CableModel`` is the compiled kernel
+(sbcal.model.cable_kernel), ``numpy`` the same model on the numpy formulation it replaced
+(tests/cable_reference.py): their ratio is the kernel's gain, and their largest difference in
+``f_uu`` is printed. Targets (the kernel issue): >= 5x on the numpy formulation, <= 4 ms for 16
+sets x 296 lines. Then, at the first ``--sets``, where the time goes in each: the compliance table,
+the arm constants, the one-compliance start and Newton (mean and largest iterations per entry).
+The first call's compile time (or cache load) is printed first.
 """
 
 import argparse
 import os
+import sys
+import time
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the target says
 
@@ -22,13 +29,15 @@ import numpy as np  # noqa: E402
 from sbcal import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.model.cable import CableModel, _resolve
 from sbcal.model.cable_element import ElementCableModel
-from sbcal.model.cable_sections import _widely_solve  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from _slip_baseline import SlipModel  # noqa: E402
-from sbcal.model.hysteresis import DahlLaw, IwanLaw, LognormalIwanLaw  # noqa: E402
+from sbcal.model.hysteresis import DahlLaw, IwanLaw, LognormalIwanLaw, law_for  # noqa: E402
 from sbcal.simulate.virtual_bench import DEFAULT_TESTS, test_amplitude  # noqa: E402
 
 from _timing import best_time  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.cable_reference import NumpyCableModel  # noqa: E402
 
 
 def workload(d, n, seed=0):
@@ -55,22 +64,30 @@ def breakdown(model, d, freq, amp, params, repeat):
     p, n_sets = _resolve(model.parameter_names, (), d, params)
     omega, x0 = 2 * np.pi * freq, amp / 2 * 1e-3
     table = model._table(p, n_sets)
-    arms = model._arms(p, n_sets, omega, x0)
+    rule = model._zone_rule(p, n_sets) if model.zoned else None
+    arms = model._arms(p, n_sets, omega, x0, rule)
     start = model._start(table, arms)
     sol = model._newton(table, arms, start)
-
-    def residual_and_solve():
-        r, x, y, _ = model._residual(table, arms, sol[0])
-        _widely_solve(x, y, r)
-
     times = {
         "compliance table": best_time(lambda: model._table(p, n_sets), repeat),
-        "arm constants": best_time(lambda: model._arms(p, n_sets, omega, x0), repeat),
+        "arm constants": best_time(lambda: model._arms(p, n_sets, omega, x0, rule), repeat),
         "one-compliance start": best_time(lambda: model._start(table, arms), repeat),
         "Newton (all iterations)": best_time(lambda: model._newton(table, arms, start), repeat),
-        "  one full residual + 2x2 solves": best_time(residual_and_solve, repeat),
     }
     return times, sol[2]
+
+
+def zoned_workload(d, n, seed=1):
+    """Random sets of the zoned Iwan law (iwan5_zoned; boxes around benchmarks/zones_identifiability.py's truth)."""
+    rng = np.random.default_rng(seed)
+    u = lambda lo, hi: rng.uniform(lo, hi, n)  # noqa: E731
+    params = dict(EJ_min=u(3, 7), beta_material=u(0.02, 0.1), delta_EJ=u(30, 60),
+                  chi_micro=np.exp(u(np.log(1e-5), np.log(5e-5))), chi_macro=np.exp(u(np.log(5e-3), np.log(2e-2))),
+                  density_exponent=u(-0.9, -0.5), macro_ratio=u(0.1, 0.3),
+                  clamp_zone=u(0.1, 0.3), clamp_EJ_min_ratio=u(1.5, 2.5), clamp_delta_EJ_ratio=u(2, 3),
+                  clamp_moment_ratio=u(5, 10), mass_zone=u(0.05, 0.15), mass_EJ_min_ratio=u(1.2, 1.8),
+                  mass_delta_EJ_ratio=u(1.2, 1.8), mass_moment_ratio=u(2, 4))
+    return law_for("iwan5_zoned"), params
 
 
 def main():
@@ -79,40 +96,56 @@ def main():
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--element-repeat", type=int, default=2)
     ap.add_argument("--no-element", action="store_true", help="skip the (slow) element model")
+    ap.add_argument("--zoned", action="store_true", help="also the zoned Iwan law (iwan5_zoned)")
     args = ap.parse_args()
 
     d = resolve_damper("damper1")
     freq = np.concatenate([STANDARD_GRID_HZ] * len(DEFAULT_TESTS))
     amp = np.concatenate([test_amplitude(t, STANDARD_GRID_HZ) for t in DEFAULT_TESTS])
     slip_model = SlipModel(amp)
+    t0 = time.perf_counter()
+    CableModel(IwanLaw()).dynamic_stiffness(d, freq[:2], amp[:2], **workload(d, 1)[0]["iwan"][1])
+    print(f"first call of the compiled kernel in this process (compile, or load from numba's cache): "
+          f"{time.perf_counter() - t0:.2f} s")
     print(f"{freq.size} lines (the {len(DEFAULT_TESTS)} dry tests), damper1, one core; best of {args.repeat}")
-    print(f"{'model':34s} {'sets':>5s} {'ms/call':>9s} {'evals/s':>10s} {'x SlipModel':>12s}  notes")
+    print(f"{'model':40s} {'sets':>5s} {'ms/call':>9s} {'evals/s':>10s} {'x SlipModel':>12s} {'x numpy':>8s}  notes")
     for n in args.sets:
         laws, slip = workload(d, n)
+        if args.zoned:
+            laws["iwan5_zoned"] = zoned_workload(d, n)
         evals = n * freq.size
         t_ref = best_time(lambda: slip_model(d, freq, **slip), args.repeat)
-        print(f"{'SlipModel (1 element, rms)':34s} {n:5d} {t_ref * 1e3:9.1f} {evals / t_ref:10.3g} {1.0:12.2f}")
+        print(f"{'SlipModel (1 element, rms)':40s} {n:5d} {t_ref * 1e3:9.1f} {evals / t_ref:10.3g} {1.0:12.2f}")
         for name, (law, params) in laws.items():
-            model = CableModel(law)
-            st = model.state(d, freq, amp, **params)
-            t = best_time(lambda: model.dynamic_stiffness(d, freq, amp, **params), args.repeat)
-            print(f"{'CableModel ' + name + f', Q={model.sections}':34s} {n:5d} {t * 1e3:9.1f} {evals / t:10.3g}"
-                  f" {t_ref / t:12.2f}  converged {st.converged.mean():.4f}")
+            fast, slow = CableModel(law), NumpyCableModel(law)
+            st = fast.state(d, freq, amp, **params)
+            gap = np.nanmax(np.abs(fast.dynamic_stiffness(d, freq, amp, **params)
+                                   / slow.dynamic_stiffness(d, freq, amp, **params) - 1))
+            t_np = best_time(lambda: slow.dynamic_stiffness(d, freq, amp, **params), args.repeat)
+            t = best_time(lambda: fast.dynamic_stiffness(d, freq, amp, **params), args.repeat)
+            label = f", Q={fast.sections}" + (f"+2x{fast.zone_sections}" if fast.zoned else "")
+            print(f"{'numpy ' + name + label:40s} {n:5d} {t_np * 1e3:9.1f} {evals / t_np:10.3g} {t_ref / t_np:12.2f}"
+                  f" {1.0:8.2f}")
+            print(f"{'CableModel ' + name + label:40s} {n:5d} {t * 1e3:9.1f} {evals / t:10.3g} {t_ref / t:12.2f}"
+                  f" {t_np / t:8.2f}  converged {st.converged.mean():.4f}, |f_uu / numpy - 1| <= {gap:.1e}")
         if not args.no_element:
             law, params = laws["dahl"]
             element = ElementCableModel(law)
             t = best_time(lambda: element.dynamic_stiffness(d, freq, amp, **params), args.element_repeat)
-            print(f"{'ElementCableModel dahl, N=' + str(element.n_elements):34s} {n:5d} {t * 1e3:9.1f}"
+            print(f"{'ElementCableModel dahl, N=' + str(element.n_elements):40s} {n:5d} {t * 1e3:9.1f}"
                   f" {evals / t:10.3g} {t_ref / t:12.2f}")
 
     n = args.sets[0]
     laws, _ = workload(d, n)
-    print(f"\nwhere the fast model's time goes ({n} sets, {freq.size} lines; best of {args.repeat}):")
+    if args.zoned:
+        laws["iwan5_zoned"] = zoned_workload(d, n)
+    print(f"\nwhere the fast model's time goes ({n} sets, {freq.size} lines; best of {args.repeat}; numpy / compiled):")
     for name, (law, params) in laws.items():
         times, its = breakdown(CableModel(law), d, freq, amp, params, args.repeat)
+        ref, _ = breakdown(NumpyCableModel(law), d, freq, amp, params, args.repeat)
         print(f"  {name}: Newton iterations per entry mean {its.mean():.2f}, largest {its.max()}")
         for phase, t in times.items():
-            print(f"    {phase:34s} {t * 1e3:7.2f} ms")
+            print(f"    {phase:34s} {ref[phase] * 1e3:7.2f} / {t * 1e3:7.2f} ms")
 
 
 if __name__ == "__main__":

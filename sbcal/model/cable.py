@@ -38,8 +38,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.errors import InputError
+from . import cable_kernel
 from .cable_sections import (_TINY, _Arms, _Compliance, _compliance_table, _gauss, _grid, _linear_compliance,
-                             _lookup, _widely_solve, _Work, segments_from_frequencies)
+                             segments_from_frequencies)
 from .damper import GEOMETRY, Damper
 from .hysteresis import HysteresisLaw
 from .zones import ZonedLaw
@@ -55,9 +56,19 @@ DEFAULT_ZONE_SECTIONS = 3
 """Gauss-Legendre sections of each boundary zone of a zoned law (``docs/cable.md``)."""
 
 _BASE = ("EJ_min", "beta_material", "rocking_rad_per_m")
-_STEP_CAP = 0.5  # fast model: a Newton step is at most this fraction of |P|
-_START_STEPS = 6  # fast model: relaxed steps of the one-compliance start
-_START_RELAX = 0.3
+_NO_ZONES = np.zeros((1, 1), dtype=np.intp)  # the kernel's per-section table rows of an unzoned law (unused)
+
+
+def _complex(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=complex)
+
+
+def _real(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=float)
+
+
+def _rows(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.intp)
 
 
 def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
@@ -324,68 +335,30 @@ class CableModel(_CableBase):
         return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L, eta=np.ascontiguousarray(eta),
                      weights=weights, zrow=zrow)
 
-    # --- Newton on the node loads ---------------------------------------------------------------
+    # --- Newton on the node loads (compiled: sbcal.model.cable_kernel) --------------------------
 
-    def _sums(self, table, arms: _Arms, p0, p1):
-        """Section moments of K, dK/dy and (dK/dy) / |M|^2 against the weights ``w eta^k``.
+    def _kernel_rule(self, arms: _Arms):
+        """The sections as the kernel takes them: eta (Q, 1 or b), weights (5, Q, 1 or b), the zoned
+        law's table row per section (Q, b) and whether the sections are per entry."""
+        if arms.eta is not None:
+            return arms.eta, arms.weights, arms.zrow, True
+        eta, wp = self._rule
+        return eta[:, None], wp[:, :, None], _NO_ZONES, False
 
-        Returns (sk, sd, se): complex arrays of shape (3, b), (3, b), (5, b), row k holding the
-        weight ``w eta^(2-k)`` (sk, sd) or ``w eta^(4-k)`` (se); and the sections' (Kr, Ki, |M|^-2),
-        each (Q, b). All are :class:`_Work` buffers, valid until the next call.
-        """
-        b = p0.size
-        zoned = arms.eta is not None
-        eta, wp = (arms.eta, arms.weights) if zoned else self._rule
-        q = eta.shape[0]
-        # |M|^2 along the arm, a quadratic in eta: |p0|^2 eta^2 + 2 Re(p0 conj p1) eta + |p1|^2
-        m2 = _Work.get("m2", (q, b))
-        if zoned:
-            np.multiply(eta, p0.real**2 + p0.imag**2, out=m2)
-        else:
-            np.multiply.outer(eta, p0.real**2 + p0.imag**2, out=m2)
-        m2 += 2.0 * (p0.real * p1.real + p0.imag * p1.imag)
-        m2 *= eta if zoned else eta[:, None]
-        m2 += p1.real**2 + p1.imag**2
-        kd = _Work.get("kd", (q, 4, b))  # Kr, Ki, Dr, Di: one block for one matrix product
-        _lookup(table, m2, arms.zrow if zoned else arms.row, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
-        np.maximum(m2, _TINY, out=m2)
-        np.reciprocal(m2, out=m2)
-        e = _Work.get("e", (q, 2, b))
-        np.multiply(kd[:, 2], m2, out=e[:, 0])
-        np.multiply(kd[:, 3], m2, out=e[:, 1])
-        if zoned:  # each entry its own weights: a sum over the sections per entry
-            s4 = np.einsum("kqb,qjb->kjb", wp[2:], kd, out=_Work.get("s4", (3, 4, b)))
-            s2 = np.einsum("kqb,qjb->kjb", wp, e, out=_Work.get("s2", (5, 2, b)))
-        else:
-            s4 = np.matmul(wp[2:], kd.reshape(q, 4 * b), out=_Work.get("s4", (3, 4 * b))).reshape(3, 4, b)
-            s2 = np.matmul(wp, e.reshape(q, 2 * b), out=_Work.get("s2", (5, 2 * b))).reshape(5, 2, b)
-        out = []
-        for name, src, i in (("sk", s4, 0), ("sd", s4, 2), ("se", s2, 0)):
-            z = _Work.get(name, (src.shape[0], b), complex)
-            z.real, z.imag = src[:, i], src[:, i + 1]
-            out.append(z)
-        return (*out, (kd[:, 0], kd[:, 1], m2))
+    def _sections(self, table, arms: _Arms, p):
+        """The sections at the loads ``p`` (2, b): compliance ``Kr``, ``Ki`` and ``|M|^-2``, each (Q, b)."""
+        eta, _, zrow, zoned = self._kernel_rule(arms)
+        return cable_kernel.sections(_complex(p), _rows(arms.row), eta, zrow, zoned, *table.args)
 
-    def _residual(self, table, arms, p):
-        """Residual ``R(p) = S(p) + N c - N p`` (2, b), the Newton matrices X, Y (``dR = -(X dp +
-        Y conj(dp))``, symmetric, (3, b) each) and the sections' (Kr, Ki, |M|^-2)."""
-        p0, p1 = p
-        sk, sd, se, sec = self._sums(table, arms, p0, p1)
-        # S(p) = SK p with SK = (sk[eta^2], sk[eta], sk[1]) symmetric, so R = N c - (N - SK) p
-        x = np.subtract(arms.n, sk, out=sk)
-        r = _Work.get("r", (2, p0.size), complex)
-        np.multiply(x[0], p0, out=r[0])
-        r[0] += x[1] * p1
-        np.multiply(x[1], p0, out=r[1])
-        r[1] += x[2] * p1
-        np.subtract(arms.nc, r, out=r)
-        # dS = A dp + B conj(dp): A = sum w l l^T (K + dK/dy), B = sum w l l^T (M^2/|M|^2) dK/dy
-        x -= sd
-        y = np.multiply(p0 * p0, se[:3], out=sd)
-        y += (2.0 * p0 * p1) * se[1:4]
-        y += (p1 * p1) * se[2:]
-        np.negative(y, out=y)
-        return r, x, y, sec
+    @staticmethod
+    def _lookup_many(table, m2, row):
+        """``(Kr, Ki, Dr, Di)`` of the table at ``|M|^2`` ``m2`` (..., b), table rows ``row`` (b,) or m2's shape."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y = np.log(m2)
+        rows = np.broadcast_to(row, m2.shape)
+        out = cable_kernel.lookup(np.ascontiguousarray(y, dtype=float).reshape(-1), _rows(rows.reshape(-1)),
+                                  *table.args)
+        return tuple(out.reshape((4,) + m2.shape))
 
     @staticmethod
     def _uniform_start(arms: _Arms, k):
@@ -402,78 +375,22 @@ class CableModel(_CableBase):
         A relaxed fixed point in ``z = ln(mean |M|^2)`` from the fully slipped cable:
         ``z <- (1 - r) z + r ln(mean |M(K(z))|^2)``; a few steps put the loads on the right scale
         (they may be 10x the slipped cable's near a resonance of the partly stuck one). With one
-        compliance K the loads are ``(a, b) / det`` with ``a, b, det`` polynomials in K (below).
+        compliance K the loads are ``(a, b) / det`` with ``a, b, det`` polynomials in K. Returns (2, b).
         """
-        n00, n01, n11 = arms.n
-        c0, c1 = arms.nc
-        # (N - K U) p = N c, U = [[1/3, 1/2], [1/2, 1]]: det = d0 - d1 K + K^2 / 12,
-        # p0 det = e0 - e1 K, p1 det = f0 - f1 K
-        d0, d1 = n00 * n11 - n01 * n01, n00 + n11 / 3.0 - n01
-        e0, e1 = n11 * c0 - n01 * c1, c0 - c1 / 2.0
-        f0, f1 = n00 * c1 - n01 * c0, c1 / 3.0 - c0 / 2.0
-        k = table.refs[arms.row, 1]
-        z = None
-        for it in range(_START_STEPS + 1):
-            a, b = e0 - e1 * k, f0 - f1 * k
-            if it == _START_STEPS:
-                break
-            det = d0 + k * (k / 12.0 - d1)
-            # mean of |p0 eta + p1|^2 over eta in [0, 1]
-            m2 = ((a.real**2 + a.imag**2) / 3.0 + (a.real * b.real + a.imag * b.imag) + b.real**2 + b.imag**2)
-            znew = np.log(np.maximum(m2, _TINY) / np.maximum(det.real**2 + det.imag**2, _TINY))
-            z = znew if z is None else z + _START_RELAX * (znew - z)
-            kr, ki, _, _ = _lookup(table, z[None, :], arms.row, log=False)
-            k = kr[0] + 1j * ki[0]
-        det = d0 + k * (k / 12.0 - d1)
-        return np.stack([a, b]) / det
+        return cable_kernel.start(_real(arms.n), _real(arms.nc), _rows(arms.row), *table.args)
 
     def _newton(self, table, arms: _Arms, p):
-        """Damped Newton from ``p`` (2, b) for every entry; converged entries leave the batch.
+        """Damped Newton from ``p`` (2, b) for every entry, each to its own convergence.
 
         A step is at most half of ``|p|`` (far from the solution the widely linear model is poor),
         and an entry whose residual grew halves its later steps until it falls again. An entry
-        leaves once the error left after its step, estimated from the quadratic convergence of its
+        stops once the error left after its step, estimated from the quadratic convergence of its
         last two full steps (``s_k^3 / s_k-1^2``, relative to ``|p|``), is below ``tol``: the step is
         taken, its residual not evaluated. Returns (p (2, b), error estimate, iterations per entry).
         """
-        b = p.shape[1]
-        p = p.astype(complex)
-        error = np.full(b, np.inf)
-        its = np.zeros(b, dtype=int)
-        # the active entries, compacted: global index, loads, step factor, merit, last full step
-        idx, pa = np.arange(b), p.copy()
-        damping, merit, last = np.ones(b), np.full(b, np.inf), np.full(b, np.inf)
-        sub = arms
-        for it in range(self.max_iter):
-            r, x, y, _ = self._residual(table, sub, pa)
-            d = _widely_solve(x, y, r)
-            size = np.sqrt((d.real**2 + d.imag**2).sum(axis=0)
-                           / np.maximum((pa.real**2 + pa.imag**2).sum(axis=0), _TINY))
-            f = (r.real**2 + r.imag**2).sum(axis=0)
-            damping = np.where(f > merit, 0.5 * damping, np.minimum(1.0, 2.0 * damping))
-            merit = f
-            ok = np.isfinite(size)
-            lam = np.where(ok, np.minimum(damping, _STEP_CAP / np.maximum(size, _TINY)), 0.0)
-            d *= lam
-            d[:, ~ok] = 0.0
-            pa += d
-            # error left after this step: quadratic convergence from the last full step, else the step
-            full = lam == 1.0
-            quadratic = full & (size < 1e-3) & (size < last)
-            err = np.where(quadratic, size * (size / np.where(quadratic, last, 1.0)) ** 2, size)
-            err[~full] = np.inf
-            last = np.where(full, size, np.inf)
-            done = err < self.tol if it < self.max_iter - 1 else np.ones(err.shape, dtype=bool)
-            if not done.any():
-                continue
-            gone = idx[done]
-            p[:, gone], error[gone], its[gone] = pa[:, done], err[done], it + 1
-            keep = ~done
-            if not keep.any():
-                break
-            idx, pa, damping, merit, last = idx[keep], pa[:, keep], damping[keep], merit[keep], last[keep]
-            sub = arms.take(idx)
-        return p, error, its
+        eta, wts, zrow, zoned = self._kernel_rule(arms)
+        return cable_kernel.newton(_complex(p), _real(arms.n), _real(arms.nc), _rows(arms.row), eta, wts,
+                                   zrow, zoned, float(self.tol), int(self.max_iter), *table.args)
 
     # --- public -------------------------------------------------------------------------------
 
@@ -551,7 +468,7 @@ class CableModel(_CableBase):
 
     def _assemble(self, table, arms, sol, fold, iterations, p, n_sets, omega, x0) -> CableState:
         (p0, p1), step, _ = sol
-        _, _, _, (kr, ki, inv_m2) = self._sums(table, arms, p0, p1)  # the sections at the loads returned
+        kr, ki, inv_m2 = self._sections(table, arms, sol[0])  # the sections at the loads returned
         ksec = kr + 1j * ki
         nf = omega.size
         f_uu = self._f_uu(arms, sol[0], p, n_sets, omega, x0)
@@ -572,7 +489,7 @@ class CableModel(_CableBase):
             zc, zm = (np.broadcast_to(p[k], (n_sets,))[arms.row] for k in ("clamp_zone", "mass_zone"))
             mid = np.where(eta < zm, 2, np.where(eta > 1.0 - zc, 1, 0))
             row = np.stack([2 * n_sets + arms.row, n_sets + arms.row, mid * n_sets + arms.row])
-        kr, ki, _, _ = _lookup(table, m2, row)
+        kr, ki, _, _ = self._lookup_many(table, m2, row)
         ends = per_line(np.sqrt(m2) * np.hypot(kr, ki)).reshape(n_sets, nf, -1)
         step = step.reshape(n_sets, nf, 2).max(axis=-1)
         if arms.eta is None:

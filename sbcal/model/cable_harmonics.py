@@ -223,7 +223,7 @@ class HarmonicBalance:
         curvatures; :func:`_start_arrays`)."""
         first = self.model._newton(table, arms, self.model._start(table, arms))
         p0, p1 = first[0]
-        _, _, _, (kr, ki, _) = self.model._sums(table, arms, p0, p1)
+        kr, ki, _ = self.model._sections(table, arms, first[0])
         return first, _start_arrays(p0, p1, kr + 1j * ki, eta, len(self.orders))
 
     def _solve(self, table, p, n_sets, f, amp):

@@ -4,8 +4,6 @@ up, and the statically determinate arms' Gauss sections."""
 
 from __future__ import annotations
 
-import math
-import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -108,13 +106,18 @@ class _Compliance:
     rates: np.ndarray
     monotone: np.ndarray
 
-    def per_entry(self, row):
-        """``(y0, inv_w, bucket offset)`` of the parameter sets ``row`` (cached for the last ``row``)."""
-        cache = self.__dict__.get("_per_entry")
-        if cache is None or cache[0] is not row:
-            cache = (row, self.y0[row], self.inv_w[row], row * self.n_buckets)
-            object.__setattr__(self, "_per_entry", cache)
-        return cache[1:]
+    @property
+    def args(self) -> tuple:
+        """The table as the compiled kernel's trailing arguments (:mod:`sbcal.model.cable_kernel`)."""
+        cache = self.__dict__.get("_args")
+        if cache is None:
+            c = np.ascontiguousarray
+            cache = (c(self.coef, dtype=float), c(self.upper, dtype=float), c(self.first, dtype=np.intp),
+                     c(self.y0, dtype=float), c(self.y_end, dtype=float), c(self.inv_w, dtype=float),
+                     int(self.n_buckets), int(self.steps), c(self.ends, dtype=complex), c(self.refs, dtype=complex),
+                     c(self.rates, dtype=complex))
+            object.__setattr__(self, "_args", cache)
+        return cache
 
 
 def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> _Compliance:
@@ -194,128 +197,6 @@ def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float)
     monotone = (np.all(dy_du > 0, axis=1) & np.all(np.diff(y, axis=1) > 0, axis=1)
                 & np.all(np.isfinite(table.coef.reshape(9, s, -1)), axis=(0, 2)))
     return replace(table, monotone=monotone)
-
-
-class _Work:
-    """Scratch arrays of the section arithmetic, kept per thread across calls.
-
-    ``get(name, shape)`` is a contiguous view of the first ``prod(shape)`` elements of the buffer
-    ``name`` (grown when too small, never shrunk). The hot loop writes into memory it already
-    owns: a fresh ~1 MB array costs its page faults, more than the arithmetic done on it, and a
-    sampler calls the model ~10^4 times with the same shapes. Every element read in a call is
-    written earlier in that call, so the results do not depend on the buffers' history.
-    """
-
-    _local = threading.local()
-
-    @classmethod
-    def get(cls, name, shape, dtype=float):
-        buffers = cls._local.__dict__.setdefault("buffers", {})
-        n = math.prod(shape)
-        buf = buffers.get((name, np.dtype(dtype)))
-        if buf is None or buf.size < n:
-            buf = buffers[(name, np.dtype(dtype))] = np.empty(n, dtype=dtype)
-        return buf[:n].reshape(shape)
-
-
-def _lookup(table: _Compliance, m2, row, out=None, log=True):
-    """Section compliance and its slope from the table.
-
-    ``m2 = |M|^2`` [(N m)^2], shape (..., b) (``log=False``: ``ln |M|^2`` already); ``row`` (b,)
-    the parameter set (table row) of each entry, or of each section (m2's shape). Returns ``(Kr, Ki, Dr, Di)``, ``D = dK/dy`` (written into
-    ``out``, four arrays of m2's shape, when given). Scratch from :class:`_Work`.
-    """
-    shape = m2.shape
-    y, x = _Work.get("y", shape), _Work.get("x", shape)
-    if log:
-        with np.errstate(divide="ignore"):
-            np.log(m2, out=y)
-    else:
-        y[...] = m2
-    # bucket, its first interval, then the comparisons with the next node
-    y0, inv_w, offset = table.per_entry(row)
-    np.subtract(y, y0, out=x)
-    x *= inv_w
-    outside = x.min() < 0.0 or x.max() > table.n_buckets
-    if outside:
-        flat = x.reshape(-1)
-        where = np.flatnonzero((flat < 0.0) | (flat > table.n_buckets))
-        side = flat[where] > 0.0
-    np.clip(x, 0.0, table.n_buckets - 1, out=x)
-    j = _Work.get("j", shape, np.intp)
-    np.copyto(j, x, casting="unsafe")
-    j += offset
-    np.take(table.first, j, out=j)
-    for _ in range(table.steps):
-        np.take(table.upper, j, out=x)
-        j += y >= x
-    cf = _Work.get("cf", (9,) + shape)
-    np.take(table.coef, j, axis=1, out=cf)  # one contiguous array per coefficient
-    v = cf[8]
-    np.subtract(y, v, out=v)
-    out = tuple(np.empty(shape) for _ in range(4)) if out is None else out
-    tmp = x
-    for c0, c1, c2, c3, k, d in ((cf[0], cf[1], cf[2], cf[3], out[0], out[2]),
-                                 (cf[4], cf[5], cf[6], cf[7], out[1], out[3])):
-        # Horner in place: h1 = c3 v + c2, h2 = h1 v + c1, K = h2 v + c0; dK/dy = h2 + v (2 h1 - c2)
-        c3 *= v
-        c3 += c2
-        np.multiply(c3, v, out=tmp)
-        c1 += tmp
-        np.multiply(c1, v, out=k)
-        k += c0
-        c3 *= 2.0
-        c3 -= c2
-        c3 *= v
-        np.add(c3, c1, out=d)
-    if outside:
-        _tails(table, y, row, out, where, side)
-    return out
-
-
-def _tails(table, y, row, out, where, side):
-    """Beyond the nodes, in place: ``K = k_ref + (K_end - k_ref) exp(p (y - y_end))``.
-
-    ``y`` (..., b) the sections' ``ln |M|^2``; ``out`` the four (Kr, Ki, Dr, Di) arrays; ``where``
-    the flat indices of the sections beyond the nodes, ``side`` True above the last one.
-    """
-    at = np.unravel_index(where, y.shape)
-    r = row[at] if row.ndim == y.ndim else row[at[-1]]
-    side = side.astype(np.intp)
-    ref = table.refs[r, side]
-    gap = table.ends[r, side] - ref
-    rate = table.rates[r, side]
-    edge = np.where(side == 1, table.y_end[r], table.y0[r])
-    with np.errstate(over="ignore", invalid="ignore"):
-        e = gap * np.exp(rate * (y[at] - edge))
-    e = np.where(np.isfinite(e), e, 0.0)
-    k = ref + e
-    d = rate * e
-    for dst, src in zip(out, (k.real, k.imag, d.real, d.imag)):
-        dst[at] = src
-
-
-def _widely_solve(x, y, r):
-    """Solve ``X d + Y conj(d) = r`` for d (2 complex per entry) by 2x2 complex eliminations.
-
-    ``x, y``: symmetric 2x2 complex matrices as arrays (3, b) of (a00, a01, a11); ``r`` (2, b).
-    Conjugating gives ``conj(d) = conj(X)^-1 (conj(r) - conj(Y) d)``, hence
-    ``(X - W conj(Y)) d = r - W conj(r)`` with ``W = Y conj(X^-1)``. Returns d, (2, b).
-    """
-    x00, x01, x11 = x
-    y00, y01, y11 = y
-    idet = np.conj(1.0 / (x00 * x11 - x01 * x01))
-    i00, i01, i11 = np.conj(x11) * idet, -np.conj(x01) * idet, np.conj(x00) * idet  # conj(X^-1)
-    w00, w01 = y00 * i00 + y01 * i01, y00 * i01 + y01 * i11
-    w10, w11 = y01 * i00 + y11 * i01, y01 * i01 + y11 * i11
-    c00, c01, c11 = np.conj(y)
-    s00, s01 = x00 - (w00 * c00 + w01 * c01), x01 - (w00 * c01 + w01 * c11)
-    s10, s11 = x01 - (w10 * c00 + w11 * c01), x11 - (w10 * c01 + w11 * c11)
-    r0, r1 = r
-    c0, c1 = np.conj(r0), np.conj(r1)
-    v0, v1 = r0 - (w00 * c0 + w01 * c1), r1 - (w10 * c0 + w11 * c1)
-    idet = 1.0 / (s00 * s11 - s01 * s10)
-    return np.stack([(s11 * v0 - s01 * v1) * idet, (s00 * v1 - s10 * v0) * idet])
 
 
 @dataclass(frozen=True, eq=False)

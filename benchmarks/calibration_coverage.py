@@ -1,6 +1,6 @@
 """Simulation-based calibration (Talts et al. 2018) of the theta1 posterior, through the pipeline.
 
-Usage: python benchmarks/coverage.py [--datasets 100] [--workers 2] [--seed 2026] [--runs 12]
+Usage: python benchmarks/calibration_coverage.py [--datasets 100] [--workers 2] [--seed 2026] [--runs 12]
 
 For each data set: draw theta and the model-error scales from the prior, simulate a test (runs =
 model + a discrepancy shared by the runs + run noise largest at 4-15 Hz, on a geometry unlike the
