@@ -14,6 +14,7 @@ from scipy.integrate import solve_ivp
 from scipy.interpolate import RectBivariateSpline
 from scipy.optimize import brentq
 
+from . import law_kernels
 from .law_base import _DELTA_EJ, HysteresisLaw, LawParameter
 
 
@@ -270,21 +271,12 @@ def _bw_branch_eta(x, a, n):
 
 
 def _bw_turning(a, n):
-    """``eta_a`` of the steady loop at amplitude ``a``: ``A+(eta_a) + A-(eta_a) = 2 a`` (:func:`_bw_branch_eta`)."""
+    """``eta_a`` of the steady loop at amplitude ``a``: ``A+(eta_a) + A-(eta_a) = 2 a`` (:func:`_bw_branch_eta`;
+    bisection-safeguarded Newton in ``-ln(1 - eta_a)``, compiled: :func:`sbcal.model.law_kernels.bw_turning`)."""
     a, n = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(n, dtype=float))
-    lo, hi = np.zeros(a.shape), np.ones(a.shape)
-    eta_a = np.minimum(a, 0.5)
-    for _ in range(200):  # bisection-safeguarded Newton on eta_a in (0, 1)
-        e_n = eta_a**n
-        g = _bw_arc(eta_a, n, 1.0) + _bw_arc(eta_a, n, -1.0) - 2.0 * a
-        lo, hi = np.where(g < 0, eta_a, lo), np.where(g >= 0, eta_a, hi)
-        new = eta_a - g / (1.0 / (1.0 + e_n) + 1.0 / np.maximum(1.0 - e_n, 1e-300))
-        new = np.where((new > lo) & (new < hi), new, 0.5 * (lo + hi))
-        done = np.abs(new - eta_a) <= 1e-16
-        eta_a = new
-        if done.all():
-            break
-    return eta_a
+    flat_n = np.ascontiguousarray(n).ravel()
+    eta_a = law_kernels.bw_turning(np.ascontiguousarray(a).ravel(), flat_n, special.digamma(1.0 / flat_n))
+    return eta_a.reshape(a.shape)
 
 
 def _bw_signed_arc(eta, n):
@@ -350,64 +342,24 @@ def _bw_periodic(chi, dirs, delta_EJ, chi_slip, n):
     its arc coordinate and converted only where the direction turns. The periodic state at the largest
     sample is the fixed point of the period map, by Newton from the outer loop's state
     (:func:`_bw_branch_eta`) with the map's exact derivative ``prod A'(eta) / A'(eta')``. Derivatives
-    ride along at a fixed start, then the fixed point's own motion is added.
+    ride along at a fixed start, then the fixed point's own motion is added. Compiled, one fused loop
+    per row (:func:`sbcal.model.law_kernels.bw_periodic`); the inverse arc from the per-exponent tables
+    (:func:`_bw_signed_inverse`'s choice).
     """
     m, nt = chi.shape
-    rows = np.arange(m)
-    start = np.argmax(chi, axis=1)
-    order = (start[:, None] + np.arange(nt + 1)[None, :]) % nt
-    path = chi[rows[:, None], order] / chi_slip
-    dsteps = np.diff(dirs[rows[:, None], order] / chi_slip[..., None], axis=1)
-    n = np.broadcast_to(n, (m, 1))[:, 0]
-    steps = np.diff(path, axis=1)
-    eta0 = _bw_branch_eta(np.zeros(m), 0.5 * (path[:, 0] - path.min(axis=1)), n)[1]
-
-    def slope(e, nn=n):  # d eta / dy on the falling arc (1 / A')
-        return 1.0 + np.sign(e) * np.abs(e) ** nn
-
-    def sweep(e0, track=False):
-        # the state as its arc coordinate y in the current direction s (falling +1: eta = A^-1(y);
-        # rising -1: -eta follows the falling arc), converted only where the direction turns
-        eta, deriv, out = e0.copy(), np.ones(m), np.empty((m, nt))
-        mode, y = np.ones(m), _bw_signed_arc(e0, n)
-        k = dsteps.shape[2]
-        dy, deta = np.zeros((m, k)), np.zeros((m, k))
-        dout, dstart = (np.empty((m, nt, k)), np.empty((m, nt))) if track else (None, None)
-        for j in range(nt):
-            d = steps[:, j]
-            s = np.where(d > 0, -1.0, np.where(d < 0, 1.0, mode))
-            turn = s != mode
-            if turn.any():
-                y[turn] = _bw_signed_arc(s[turn] * eta[turn], n[turn])
-                if track:
-                    dy[turn] = (s[turn] / slope(s[turn] * eta[turn], n[turn]))[:, None] * deta[turn]
-                mode = s
-            y += s * d
-            new = s * _bw_signed_inverse(y, n)
-            below, above = slope(s * eta), slope(s * new)
-            deriv *= np.divide(above, below, out=np.zeros(m), where=below > 0)  # saturated: 0
-            eta = new
-            out[:, j] = eta
-            if track:
-                dy += s[:, None] * dsteps[:, j]
-                deta = (s * above)[:, None] * dy
-                dout[:, j], dstart[:, j] = deta, deriv
-        return out, deriv, dout, dstart
-
-    for _ in range(8):  # Newton on the period map (a contraction): quadratic from the outer loop's state
-        out, deriv, _, _ = sweep(eta0)
-        gap = out[:, -1] - eta0
-        if np.all(np.abs(gap) <= 1e-13):
-            break
-        eta0 = np.clip(eta0 - gap / np.where(deriv < 1.0, deriv - 1.0, -1.0), -1.0, 1.0)
-    out, deriv, dout, dstart = sweep(eta0, track=True)
-    # the periodic start moves with the path: d eta0 = d eta_end (at fixed start) / (1 - d eta_end / d eta0)
-    move = dout[:, -1] / np.where(deriv < 1.0, 1.0 - deriv, 1.0)[:, None]
-    dout = dout + dstart[..., None] * move[:, None, :]
-    back = np.empty_like(order[:, 1:])
-    back[rows[:, None], order[:, 1:]] = np.arange(nt)[None, :]
+    ks = np.ascontiguousarray(np.broadcast_to(chi_slip, (m, 1))[:, 0], dtype=float)
+    n = np.ascontiguousarray(np.broadcast_to(n, (m, 1))[:, 0], dtype=float)
+    values, row = np.unique(n, return_inverse=True)
+    if values.size > _BW_INVERSE_TABLES:  # too many exponents for tables: Newton on the arc
+        row = np.full(m, -1)
+        yk = ek = dk = np.zeros((1, 2))
+    else:
+        yk, ek, dk = (np.stack(t) for t in zip(*(_bw_inverse_table(float(v)) for v in values)))
+    eta, deta = law_kernels.bw_periodic(np.ascontiguousarray(chi, dtype=float),
+                                        np.ascontiguousarray(dirs, dtype=float), ks, n, special.digamma(1.0 / n),
+                                        row.astype(np.int64), yk, ek, dk)
     scale = delta_EJ * chi_slip
-    return (scale * out)[rows[:, None], back], (scale[..., None] * dout)[rows[:, None], back]
+    return scale * eta, scale[..., None] * deta
 
 
 @functools.lru_cache(maxsize=1)

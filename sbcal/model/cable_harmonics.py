@@ -447,13 +447,17 @@ def _basis(theta, hs, order):
     """The real harmonic basis at phases ``theta`` (...,) and its ``order``-th derivative in theta (0-2):
     columns ``cos(h theta), -sin(h theta)`` per harmonic of ``hs`` (each twice), so that a signal is
     ``basis @ [Re, Im, ..]``. Shape (..., 2H)."""
-    even = np.arange(hs.size) % 2 == 0
-    ph = hs * theta[..., None]
+    h = hs[::2]  # each order once: one cosine and one sine per order
+    ph = h * np.asarray(theta, dtype=float)[..., None]
+    c, s = np.cos(ph), np.sin(ph)
+    out = np.empty(ph.shape[:-1] + (hs.size,))
     if order == 0:
-        return np.where(even, np.cos(ph), -np.sin(ph))
-    if order == 1:
-        return np.where(even, -np.sin(ph), -np.cos(ph)) * hs
-    return np.where(even, -np.cos(ph), np.sin(ph)) * hs**2
+        out[..., 0::2], out[..., 1::2] = c, -s
+    elif order == 1:
+        out[..., 0::2], out[..., 1::2] = -s * h, -c * h
+    else:
+        out[..., 0::2], out[..., 1::2] = -c * h**2, s * h**2
+    return out
 
 
 def _start_arrays(p0, p1, compliance, eta, h_n):

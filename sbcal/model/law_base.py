@@ -10,6 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..core.errors import InputError
+from . import law_kernels
 
 
 __all__ = ["LawParameter", "HysteresisLaw", "jenkins_rigidity"]
@@ -208,7 +209,7 @@ class HysteresisLaw:
         backbone = getattr(self, "backbone", None)
         if backbone is None:  # pragma: no cover - every law of sbcal has one or overrides
             raise NotImplementedError(f"{self.name}: no periodic evaluation")
-        return _masing_periodic(lambda x: backbone(x[:, None], **p)[:, 0], chi, dirs)
+        return _masing_periodic(lambda x: backbone(x, **p), chi, dirs)
 
     def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:  # pragma: no cover - abstract
         """Slip moment [N m] on the steady loop ``chi = chi_a cos(theta)``, theta in [0, 2 pi).
@@ -259,7 +260,9 @@ def _masing_periodic(backbone, chi, dirs):
     (odd ``B``) from the last reversal ``r``; once the curvature passes the reversal before it, the
     inner loop has closed and both points are dropped (Madelung's rule: the path rejoins the branch it
     left). Derivatives ride along: ``dM = dM_r + B'(u) (d chi - d chi_r)`` (``B'`` by a forward
-    difference).
+    difference). The stack depends on the path only (compiled: :func:`sbcal.model.law_kernels.masing_reversals`),
+    so the backbone is evaluated once over all samples, then the recurrence runs compiled
+    (:func:`sbcal.model.law_kernels.masing_accumulate`). ``backbone`` takes and returns (n, any) arrays.
     """
     n, nt = chi.shape
     rows = np.arange(n)
@@ -267,49 +270,21 @@ def _masing_periodic(backbone, chi, dirs):
     low = np.argmin(chi, axis=1)
     order = (start[:, None] + np.arange(nt + 1)[None, :]) % nt
     path = chi[rows[:, None], order]  # from the largest sample round to it again
-    dpath = dirs[rows[:, None], order]
+    dpath = np.ascontiguousarray(dirs[rows[:, None], order], dtype=float)
     top, bottom = path[:, 0], chi[rows, low]
-    h = 1e-7 * (top - bottom) + 1e-300
-
-    def odd(x):
-        return np.sign(x) * backbone(np.abs(x))
-
-    def slope(x):
-        return (backbone(x + h) - backbone(x)) / h
-
+    h = (1e-7 * (top - bottom) + 1e-300)[:, None]
+    ref = law_kernels.masing_reversals(np.ascontiguousarray(path, dtype=float))
+    # each sample's distance from its reversal (column 0: the outer loop's half range)
+    kr = np.where(ref >= 0, np.take_along_axis(path, np.maximum(ref, 0), axis=1), bottom[:, None])
+    u = 0.5 * (path - kr)
+    u[:, 0] = 0.5 * (top - bottom)
+    x = np.abs(u)
+    b = backbone(np.concatenate([x, x + h], axis=1))
+    b0, b1 = b[:, :nt + 1], b[:, nt + 1:]
+    slope = (b1 - b0) / h
+    branch = 2.0 * (np.sign(u) * b0)
     # the outer loop of an odd periodic curvature: M(top) = B(half range)
-    half = 0.5 * (top - bottom)
-    m_top = backbone(half)
-    dm_top = slope(half)[:, None] * 0.5 * (dpath[:, 0] - dirs[rows, low])
-    depth = 8
-    sk, sm = np.zeros((n, depth)), np.zeros((n, depth))
-    dsk, dsm = np.zeros((n, depth) + dirs.shape[2:]), np.zeros((n, depth) + dirs.shape[2:])
-    sk[:, 0], sm[:, 0], dsk[:, 0], dsm[:, 0] = bottom, -m_top, dirs[rows, low], -dm_top
-    sk[:, 1], sm[:, 1], dsk[:, 1], dsm[:, 1] = top, m_top, dpath[:, 0], dm_top
-    level = np.ones(n, dtype=int)
-    m_out, dm_out = np.empty((n, nt)), np.empty((n, nt) + dirs.shape[2:])
-    going_up = np.zeros(n, dtype=bool)
-    prev_k, prev_m, prev_dk, prev_dm = top.copy(), m_top.copy(), dpath[:, 0], dm_top
-    for j in range(1, nt + 1):
-        x, dx = path[:, j], dpath[:, j]
-        up = x > prev_k
-        turn = (up != going_up) & (x != prev_k) & (j > 1)
-        if turn.any():  # the previous sample was a reversal: push it
-            g = turn & (level < depth - 1)
-            level = np.where(g, level + 1, level)
-            sk[rows[g], level[g]], sm[rows[g], level[g]] = prev_k[g], prev_m[g]
-            dsk[rows[g], level[g]], dsm[rows[g], level[g]] = prev_dk[g], prev_dm[g]
-        going_up = np.where(x != prev_k, up, going_up)
-        for _ in range(depth):  # pass the reversal before the last: the inner loop closes
-            closed = (level >= 2) & np.where(going_up, x >= sk[rows, level - 1], x <= sk[rows, level - 1])
-            if not closed.any():
-                break
-            level = np.where(closed, level - 2, level)
-        kr, mr, dkr, dmr = sk[rows, level], sm[rows, level], dsk[rows, level], dsm[rows, level]
-        u = 0.5 * (x - kr)
-        m = mr + 2.0 * odd(u)
-        dm = dmr + slope(np.abs(u))[:, None] * (dx - dkr)
-        at = order[:, j] if j < nt else order[:, 0]
-        m_out[rows, at], dm_out[rows, at] = m, dm
-        prev_k, prev_m, prev_dk, prev_dm = x, m, dx, dm
-    return m_out, dm_out
+    m_top = b0[:, 0]
+    dm_top = slope[:, 0][:, None] * 0.5 * (dpath[:, 0] - dirs[rows, low])
+    return law_kernels.masing_accumulate(ref, order, branch, slope, m_top, np.ascontiguousarray(dm_top),
+                                         dpath, np.ascontiguousarray(dirs[rows, low], dtype=float))
