@@ -20,6 +20,7 @@ from ..inference.sampler import SamplerConfig, sample
 from ..inference.stats import loo
 from ..model.extensions import model_for
 from ..model.hysteresis import FITTED_LAWS
+from ..model.zones import ZONED_SUFFIX
 
 
 __all__ = ["DiagnoseConfig"]
@@ -205,8 +206,9 @@ def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
 
 def _zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | None, dict | None]:
     """The zoned family to fit next for the cable model ``name`` (:func:`sbcal.inference.cable_fit.zoned_candidate`:
-    the best family's, when it converged and leaves a misfit in a cable state by the diagnosis's own rule), and
-    its start per cable state (:func:`sbcal.inference.cable_fit.zoned_start`); ``(None, None)`` when none."""
+    the highest-ELPD family's, converged or not, when the best converged family leaves a misfit in a cable
+    state by the diagnosis's own rule, or none converged), and its start per cable state
+    (:func:`sbcal.inference.cable_fit.zoned_start` from that family's fits); ``(None, None)`` when none."""
     kept, comparison = _choose_law(fits, name)
     if comparison is None:
         return None, None
@@ -215,6 +217,7 @@ def _zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | Non
     law = zoned_candidate(comparison, partial)
     if law is None or not compared_laws((law,), [t for f in kept.values() for t in f["tests"]]):
         return None, None
-    starts = {state: zoned_start({n: float(np.median(v)) for n, v in f["params"].items()}, f["like"].prior)
-              for (_, state), f in kept.items()}
+    top = law[:-len(ZONED_SUFFIX)]
+    starts = {key[1]: zoned_start({n: float(np.median(v)) for n, v in f["params"].items()}, f["like"].prior)
+              for key, f in fits.items() if key[0] == name and len(key) == 3 and key[2] == top}
     return law, starts

@@ -499,17 +499,20 @@ def read_cable(directory) -> tuple[dict, dict]:
 def zoned_candidate(comparison: dict, partial: bool) -> str | None:
     """The zoned family (:mod:`sbcal.model.zones`) to fit after the uniform ones, or None.
 
-    The zoned law of the best family, when that family converged and its fit leaves a misfit
-    (``partial``: the qualifier of :mod:`sbcal.inference.checks` in some cable state). The screen
-    fits only what can win: where the uniform law explains the runs within their noise, a law that
-    changes along the arm has nothing left to explain (and the uniform law, the simplest member,
-    stands); where the uniform fit did not converge, a richer one will not either.
+    The zoned law of the family with the highest ELPD, converged or not: a misspecified uniform law
+    need not converge where its zoned law would (a uniform fit of a cable that is stiffer at its ends
+    sits on a ridge of trade-offs that the zones remove), so the screen looks at what fits best, and the
+    comparison of converged fits (:func:`compare_families`) judges the result. Fitted where the best
+    converged family leaves a misfit (``partial``: the qualifier of :mod:`sbcal.inference.checks` in some
+    cable state) or where no family converged; where a converged uniform law explains the runs within
+    their noise, a law that changes along the arm has nothing left to explain.
     """
-    best = comparison["best"]
-    if not partial or not comparison["converged"] or best.endswith(ZONED_SUFFIX):
+    families = comparison["families"]
+    top = max(families, key=lambda law: families[law]["elpd"])
+    if top.endswith(ZONED_SUFFIX) or not (partial or not comparison["converged"]):
         return None
-    law = zoned(best)
-    return None if law in comparison["families"] else law
+    law = zoned(top)
+    return None if law in families else law
 
 
 def zoned_start(uniform: dict, prior: Prior) -> dict:
@@ -548,7 +551,8 @@ def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, pri
         partial = any(_remainder(f)[0]["qualifier"] == "partial" for f in fits[comparison["best"]].values())
         law = zoned_candidate(comparison, partial)
         if law is not None and compared_laws((law,), tests):
-            fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[comparison["best"]].items()})
+            top = law[:-len(ZONED_SUFFIX)]  # its uniform family: the zoned fit starts from it
+            fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[top].items()})
             comparison = compare_families(fits)
     return fits, comparison
 
