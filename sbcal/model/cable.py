@@ -56,7 +56,6 @@ DEFAULT_ZONE_SECTIONS = 3
 """Gauss-Legendre sections of each boundary zone of a zoned law (``docs/cable.md``)."""
 
 _BASE = ("EJ_min", "beta_material", "rocking_rad_per_m")
-_NO_ZONES = np.zeros((1, 1), dtype=np.intp)  # the kernel's per-section table rows of an unzoned law (unused)
 
 
 def _complex(a) -> np.ndarray:
@@ -326,29 +325,23 @@ class CableModel(_CableBase):
         fa, fb = -(1.0 + u0) / L, -u1
         fc = -w2 * cm * (156 * w0 + 22 * L * t0) + w2 * (u0 * (b00 * w0 + b01 * t0) + u1 * (b10 * w0 + b11 * t0))
         row = np.broadcast_to(np.arange(n_sets)[:, None, None], (n_sets, nf, 2)).reshape(-1)
-        if rule is None:
-            return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L)
-        eta, w, zone = rule
-        eta, w = eta[:, row], w[:, row]  # (Q, b)
-        weights = np.ascontiguousarray(eta[None] ** np.arange(4, -1, -1)[:, None, None] * w[None])
-        zrow = np.ascontiguousarray(zone[:, None] * n_sets + row[None, :]).astype(np.intp)
-        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L, eta=np.ascontiguousarray(eta),
-                     weights=weights, zrow=zrow)
+        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L, rule=rule)
 
     # --- Newton on the node loads (compiled: sbcal.model.cable_kernel) --------------------------
 
     def _kernel_rule(self, arms: _Arms):
-        """The sections as the kernel takes them: eta (Q, 1 or b), weights (5, Q, 1 or b), the zoned
-        law's table row per section (Q, b) and whether the sections are per entry."""
-        if arms.eta is not None:
-            return arms.eta, arms.weights, arms.zrow, True
+        """The sections as the kernel takes them, per parameter set: eta and weights (n_sets or 1, Q), each
+        section's zone (Q,) and whether they are per set (a zoned law) or the model's one rule."""
+        if arms.zoned:
+            eta, w, zone = arms.rule
+            return np.ascontiguousarray(eta.T), np.ascontiguousarray(w.T), zone.astype(np.intp), True
         eta, wp = self._rule
-        return eta[:, None], wp[:, :, None], _NO_ZONES, False
+        return eta[None, :], wp[4][None, :], np.zeros(eta.size, dtype=np.intp), False
 
     def _sections(self, table, arms: _Arms, p):
         """The sections at the loads ``p`` (2, b): compliance ``Kr``, ``Ki`` and ``|M|^-2``, each (Q, b)."""
-        eta, _, zrow, zoned = self._kernel_rule(arms)
-        return cable_kernel.sections(_complex(p), _rows(arms.row), eta, zrow, zoned, *table.args)
+        eta, _, zone, zoned = self._kernel_rule(arms)
+        return cable_kernel.sections(_complex(p), _rows(arms.row), eta, zone, zoned, *table.args)
 
     @staticmethod
     def _lookup_many(table, m2, row):
@@ -388,9 +381,9 @@ class CableModel(_CableBase):
         last two full steps (``s_k^3 / s_k-1^2``, relative to ``|p|``), is below ``tol``: the step is
         taken, its residual not evaluated. Returns (p (2, b), error estimate, iterations per entry).
         """
-        eta, wts, zrow, zoned = self._kernel_rule(arms)
-        return cable_kernel.newton(_complex(p), _real(arms.n), _real(arms.nc), _rows(arms.row), eta, wts,
-                                   zrow, zoned, float(self.tol), int(self.max_iter), *table.args)
+        eta, w, zone, zoned = self._kernel_rule(arms)
+        return cable_kernel.newton(_complex(p), _real(arms.n), _real(arms.nc), _rows(arms.row), eta, w,
+                                   zone, zoned, float(self.tol), int(self.max_iter), *table.args)
 
     # --- public -------------------------------------------------------------------------------
 
@@ -485,14 +478,14 @@ class CableModel(_CableBase):
         eta = np.clip(-(p0 * np.conj(p1)).real / np.maximum(a2, _TINY), 0.0, 1.0)
         m2 = np.abs(np.stack([p1, p0 + p1, p0 * eta + p1])) ** 2
         row = arms.row
-        if arms.eta is not None:  # each end in its zone, eta* in the zone that holds it
+        if arms.zoned:  # each end in its zone, eta* in the zone that holds it
             zc, zm = (np.broadcast_to(p[k], (n_sets,))[arms.row] for k in ("clamp_zone", "mass_zone"))
             mid = np.where(eta < zm, 2, np.where(eta > 1.0 - zc, 1, 0))
             row = np.stack([2 * n_sets + arms.row, n_sets + arms.row, mid * n_sets + arms.row])
         kr, ki, _, _ = self._lookup_many(table, m2, row)
         ends = per_line(np.sqrt(m2) * np.hypot(kr, ki)).reshape(n_sets, nf, -1)
         step = step.reshape(n_sets, nf, 2).max(axis=-1)
-        if arms.eta is None:
+        if not arms.zoned:
             sections = 1.0 - self._rule[0]
         else:
             sections = 1.0 - arms.eta.reshape(-1, n_sets, nf, 2)[:, :, 0, 0].T

@@ -135,52 +135,68 @@ def start(n, nc, rows, coef, upper, first, y0, y_end, inv_w, nb, steps, ends, re
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _moments(p0, p1, e, eta, wts, zrow, row, zoned, coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs,
-             rates, sec, mom):
-    """The section moments of entry ``e`` at loads ``(p0, p1)`` into ``mom`` (22,): Re and Im of ``sk``
-    (3: weights w eta^2, eta, 1), ``sd`` (3, the same) and ``se`` (5: w eta^4 .. w eta^0 on
-    ``(dK/dy) / |M|^2``). ``sec`` (6, Q) scratch: the sections first, then each moment a sum over
-    them in registers (summing section by section into one array chained every sum through memory,
-    1.5x slower, measured)."""
+def _moments(p0, p1, row, eta, w, zone, zoned, coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs, rates,
+             sec, mom):
+    """The section moments of an entry of table row ``row`` at loads ``(p0, p1)`` into ``mom`` (22,): Re and
+    Im of ``sk`` (3: weights w eta^2, eta, 1), ``sd`` (3, the same) and ``se`` (5: w eta^4 .. w eta^0 on
+    ``(dK/dy) / |M|^2``). ``sec`` (6, Q) scratch: every section's lookup first (independent: they
+    overlap), then the moments, the weights ``w eta^k`` made on the way."""
     a2 = p0.real * p0.real + p0.imag * p0.imag
     c = 2.0 * (p0.real * p1.real + p0.imag * p1.imag)
     b2 = p1.real * p1.real + p1.imag * p1.imag
-    q_n = eta.shape[0]
-    col = e if zoned else 0
+    q_n = eta.shape[1]
+    sr = row if zoned else 0
+    n_sets = eta.shape[0]
     for q in range(q_n):
-        et = eta[q, col]
+        et = eta[sr, q]
         m2 = (et * a2 + c) * et + b2  # |M|^2 = |p0 eta + p1|^2
-        kr, ki, dr, di = _k_at(math.log(m2) if m2 > 0.0 else -np.inf, zrow[q, e] if zoned else row, coef, upper,
-                               first, y0, y_end, inv_w, nb, steps, ends, refs, rates)
+        kr, ki, dr, di = _k_at(math.log(m2) if m2 > 0.0 else -np.inf, zone[q] * n_sets + row if zoned else row,
+                               coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs, rates)
         inv = 1.0 / max(m2, _TINY)
         sec[0, q], sec[1, q], sec[2, q], sec[3, q], sec[4, q], sec[5, q] = kr, ki, dr, di, dr * inv, di * inv
-    for k in range(3):
-        akr, aki, adr, adi = 0.0, 0.0, 0.0, 0.0
-        for q in range(q_n):
-            w = wts[k + 2, q, col]
-            akr += w * sec[0, q]
-            aki += w * sec[1, q]
-            adr += w * sec[2, q]
-            adi += w * sec[3, q]
-        mom[2 * k], mom[2 * k + 1], mom[6 + 2 * k], mom[7 + 2 * k] = akr, aki, adr, adi
-    for k in range(5):
-        aer, aei = 0.0, 0.0
-        for q in range(q_n):
-            w = wts[k, q, col]
-            aer += w * sec[4, q]
-            aei += w * sec[5, q]
-        mom[12 + 2 * k], mom[13 + 2 * k] = aer, aei
+    for k in range(22):
+        mom[k] = 0.0
+    for q in range(q_n):
+        et = eta[sr, q]
+        w0 = w[sr, q]
+        w1 = w0 * et
+        w2 = w1 * et
+        w3 = w2 * et
+        w4 = w3 * et
+        kr, ki, dr, di, er, ei = sec[0, q], sec[1, q], sec[2, q], sec[3, q], sec[4, q], sec[5, q]
+        mom[0] += w2 * kr
+        mom[1] += w2 * ki
+        mom[2] += w1 * kr
+        mom[3] += w1 * ki
+        mom[4] += w0 * kr
+        mom[5] += w0 * ki
+        mom[6] += w2 * dr
+        mom[7] += w2 * di
+        mom[8] += w1 * dr
+        mom[9] += w1 * di
+        mom[10] += w0 * dr
+        mom[11] += w0 * di
+        mom[12] += w4 * er
+        mom[13] += w4 * ei
+        mom[14] += w3 * er
+        mom[15] += w3 * ei
+        mom[16] += w2 * er
+        mom[17] += w2 * ei
+        mom[18] += w1 * er
+        mom[19] += w1 * ei
+        mom[20] += w0 * er
+        mom[21] += w0 * ei
 
 
 @njit(cache=True, error_model="numpy")
-def newton(p_start, n, nc, rows, eta, wts, zrow, zoned, tol, max_iter, coef, upper, first, y0, y_end, inv_w, nb,
+def newton(p_start, n, nc, rows, eta, w, zone, zoned, tol, max_iter, coef, upper, first, y0, y_end, inv_w, nb,
            steps, ends, refs, rates):
     """Damped Newton on the node loads from ``p_start`` (2, b) (``CableModel._newton``).
 
-    ``n`` (3, b) and ``nc`` (2, b) real; ``eta`` (Q, 1 or b) the sections (from the mass node),
-    ``wts`` (5, Q, 1 or b) ``w eta^(4-k)``, ``zrow`` (Q, b) a zoned law's table row per section
-    (``zoned``), else each entry's ``rows``. Returns (loads (2, b) complex, error estimate (b,),
-    iterations per entry (b,)).
+    ``n`` (3, b) and ``nc`` (2, b) real; ``rows`` (b,) each entry's parameter set; the sections: ``eta``
+    (from the mass node) and Gauss weights ``w``, (n_sets, Q) for a zoned law (``zoned``: section q of
+    set s is in table row ``zone[q] * n_sets + s``), else (1, Q) for every entry (table row: the set).
+    Returns (loads (2, b) complex, error estimate (b,), iterations per entry (b,)).
 
     Iterations outside, the entries still active inside: one entry's iteration is a chain of
     dependent operations, the entries are independent, so the processor overlaps them (one entry's
@@ -193,7 +209,7 @@ def newton(p_start, n, nc, rows, eta, wts, zrow, zoned, tol, max_iter, coef, upp
     damping, merit, last = np.ones(b), np.full(b, np.inf), np.full(b, np.inf)
     active = np.arange(b)
     n_active = b
-    sec = np.empty((6, eta.shape[0]))
+    sec = np.empty((6, eta.shape[1]))
     mom = np.empty(22)
     out = np.empty(6)
     for it in range(max_iter):
@@ -201,7 +217,7 @@ def newton(p_start, n, nc, rows, eta, wts, zrow, zoned, tol, max_iter, coef, upp
         for i in range(n_active):
             e = active[i]
             p0, p1 = p[0, e], p[1, e]
-            _moments(p0, p1, e, eta, wts, zrow, rows[e], zoned, coef, upper, first, y0, y_end, inv_w, nb, steps,
+            _moments(p0, p1, rows[e], eta, w, zone, zoned, coef, upper, first, y0, y_end, inv_w, nb, steps,
                      ends, refs, rates, sec, mom)
             _step(p0, p1, mom, n[0, e], n[1, e], n[2, e], nc[0, e], nc[1, e], out)
             size, f = out[4], out[5]
@@ -269,22 +285,24 @@ def _step(p0, p1, mom, n00, n01, n11, nc0, nc1, out):
 
 
 @njit(cache=True, error_model="numpy")
-def sections(p, rows, eta, zrow, zoned, coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs, rates):
-    """The sections at loads ``p`` (2, b): compliance ``Kr``, ``Ki`` and ``|M|^-2``, each (Q, b)."""
+def sections(p, rows, eta, zone, zoned, coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs, rates):
+    """The sections at loads ``p`` (2, b) (``eta``, ``zone``, ``zoned`` as :func:`newton`'s): compliance
+    ``Kr``, ``Ki`` and ``|M|^-2``, each (Q, b)."""
     b = rows.size
-    q_n = eta.shape[0]
+    q_n = eta.shape[1]
+    n_sets = eta.shape[0]
     kr_o, ki_o, inv_o = np.empty((q_n, b)), np.empty((q_n, b)), np.empty((q_n, b))
     for e in range(b):
         p0, p1 = p[0, e], p[1, e]
         a2 = p0.real * p0.real + p0.imag * p0.imag
         c = 2.0 * (p0.real * p1.real + p0.imag * p1.imag)
         b2 = p1.real * p1.real + p1.imag * p1.imag
-        col = e if zoned else 0
+        row = rows[e]
+        sr = row if zoned else 0
         for q in range(q_n):
-            et = eta[q, col]
+            et = eta[sr, q]
             m2 = (et * a2 + c) * et + b2
-            r = zrow[q, e] if zoned else rows[e]
-            kr, ki, _, _ = _k_at(math.log(m2) if m2 > 0.0 else -np.inf, r, coef, upper, first, y0, y_end, inv_w,
-                                 nb, steps, ends, refs, rates)
+            kr, ki, _, _ = _k_at(math.log(m2) if m2 > 0.0 else -np.inf, zone[q] * n_sets + row if zoned else row,
+                                 coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs, rates)
             kr_o[q, e], ki_o[q, e], inv_o[q, e] = kr, ki, 1.0 / max(m2, _TINY)
     return kr_o, ki_o, inv_o

@@ -5,6 +5,7 @@ up, and the statically determinate arms' Gauss sections."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -216,18 +217,37 @@ class _Arms:
     force: tuple  # (fa, fb, fc) real
     row: np.ndarray  # table row (parameter set) of each entry, intp
     length: np.ndarray  # arm length [m]
-    # a zoned cable (sbcal.model.zones): each entry's own sections, (Q, b) eta and table row, (5, Q, b) weights
-    # w eta^(4-k); None: the model's one rule and the entry's row for every section
-    eta: np.ndarray | None = None
-    weights: np.ndarray | None = None
-    zrow: np.ndarray | None = None
+    # a zoned cable (sbcal.model.zones): the sections per parameter set, eta (Q, n_sets) from the mass node,
+    # weights w (Q, n_sets) and each section's zone (Q,) (CableModel._zone_rule); None: the model's one rule
+    rule: tuple | None = None
+
+    @property
+    def zoned(self) -> bool:
+        return self.rule is not None
+
+    @cached_property
+    def eta(self) -> np.ndarray | None:
+        """A zoned cable's section positions per entry (Q, b) (None: the model's one rule)."""
+        return None if self.rule is None else np.ascontiguousarray(self.rule[0][:, self.row])
+
+    @cached_property
+    def weights(self) -> np.ndarray | None:
+        """A zoned cable's weights per entry, ``w eta^(4 - k)`` (5, Q, b)."""
+        if self.rule is None:
+            return None
+        return np.ascontiguousarray(self.eta[None] ** np.arange(4, -1, -1)[:, None, None] * self.rule[1][:, self.row][None])
+
+    @cached_property
+    def zrow(self) -> np.ndarray | None:
+        """A zoned cable's table row per section and entry (Q, b): ``zone * n_sets + set``."""
+        if self.rule is None:
+            return None
+        return (self.rule[2][:, None] * self.rule[0].shape[1] + self.row[None, :]).astype(np.intp)
 
     def take(self, idx):
         """The constants of the entries ``idx``."""
-        zoned = {} if self.eta is None else dict(eta=self.eta[:, idx], weights=self.weights[:, :, idx],
-                                                 zrow=self.zrow[:, idx])
         return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force),
-                     row=self.row[idx], length=self.length[idx], **zoned)
+                     row=self.row[idx], length=self.length[idx], rule=self.rule)
 
 
 def _gauss(q: int):

@@ -1,0 +1,159 @@
+"""Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
+
+Usage: python benchmarks/cable_engine.py [--posteriors uniform zoned matrix] [--engines emcee nautilus]
+       [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
+
+Posteriors (``--posteriors``):
+
+- ``uniform``: damper1's dry cable state under ``iwan5`` on the bundled bench (8 tests, 6 parameters + the
+  geometry);
+- ``zoned``: the in-family ``iwan5_zoned`` of ``benchmarks/zones_identifiability.py`` (damper2, 5 amplitudes
+  x 8 runs of the zoned fast model itself; 17 parameters);
+- ``matrix``: the misspecified ``zoned_iwan5`` row of ``benchmarks/cable_matrix.py`` (the stubby damper,
+  16 runs per test, a log-normal clamp zone no family holds) fitted with ``iwan5_zoned``.
+
+Engines (``--engines``), each to sbcal's convergence rule where it has one:
+
+- ``emcee``: sbcal's engine (:func:`sbcal.inference.sampler.sample`: 4 ensembles of differential
+  evolution and an independence t move), capped at ``--steps`` steps per ensemble;
+- ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
+  dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
+
+Prints per (posterior, engine): wall time, likelihood evaluations, the convergence diagnostics (R-hat max,
+bulk/tail ESS min, tau max; nautilus: n_eff), ESS per minute of the worst parameter, and the posterior
+mean of each parameter against the truth where one is known. One heavy job: run it on an idle machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from sbcal.data.clean_bench import clean_bench  # noqa: E402
+from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
+from sbcal.inference.cable_fit import cable_config, cable_likelihood, sample_cable  # noqa: E402
+from sbcal.model.damper import load_damper, resolve_damper  # noqa: E402
+
+
+class _Counted:
+    """A target that counts its evaluations (picklable: the counts of worker processes are not seen, so
+    the engines are run with the count kept in this process where it matters)."""
+
+    def __init__(self, target):
+        self.target, self.calls = target, 0
+        self.prior = target.prior
+
+    def __call__(self, z):
+        z = np.atleast_2d(z)
+        self.calls += len(z)
+        return self.target(z)
+
+
+def posterior(name: str, seed: int):
+    """``(likelihood, truth)`` of one benchmark posterior (truth: natural values by name, or {})."""
+    if name == "uniform":
+        d = resolve_damper("damper1")
+        data = clean_bench(load_bench(default_bench_path()))
+        tests = [t for t in data.tests(d.name) if not t.endswith("oiled")]
+        return cable_likelihood(d, data, tests, "iwan5"), {}
+    if name == "zoned":
+        from zones_identifiability import make_bench
+        d = resolve_damper("damper2")
+        with tempfile.TemporaryDirectory() as tmp:
+            bench, truth = make_bench(d, "iwan5", [0.1, 0.2, 0.5, 1.0, 2.0], seed, Path(tmp) / "bench.csv")
+        data = clean_bench(bench)
+        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), truth
+    if name == "matrix":
+        from cable_matrix import record_row
+        from diagnose_matrix import STUB
+        with tempfile.TemporaryDirectory() as tmp:
+            (Path(tmp) / "stub.toml").write_text(STUB)
+            d = load_damper(Path(tmp) / "stub.toml")
+            record_row(d, "zoned_iwan5", 2029, Path(tmp) / "bench.csv")  # cable_matrix.py's seed
+            data = clean_bench(load_bench(Path(tmp) / "bench.csv"))
+        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), {}
+    raise SystemExit(f"unknown posterior {name!r}")
+
+
+def run_emcee(like, seed, steps, workers) -> dict:
+    cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
+    t0 = time.perf_counter()
+    res = sample_cable(like, seed=np.random.SeedSequence(seed), config=cfg)
+    wall = time.perf_counter() - t0
+    c = res.convergence_dict()
+    worst_ess = min(c["ess_bulk_min"], c["ess_tail_min"])
+    flat = res.flat()
+    return {"wall_s": wall, "converged": res.converged, "r_hat_max": c["r_hat_max"], "ess_min": worst_ess,
+            "tau_max": c["tau_max"], "steps": res.n_steps, "ess_per_min": worst_ess / (wall / 60),
+            "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200],
+            "mean": {k: float(np.mean(v)) for k, v in flat.items()}}
+
+
+def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
+    from nautilus import Prior, Sampler  # not a dependency of sbcal: measured here only
+
+    pr = like.prior
+    prior = Prior()
+    for i, n in enumerate(pr.names):
+        prior.add_parameter(n, dist=(pr.z_lower[i], pr.z_upper[i]))
+    target = _Counted(like)
+
+    def loglike(z):
+        lp = target(z)
+        return np.where(np.isfinite(lp), lp, -1e300)
+
+    t0 = time.perf_counter()
+    s = Sampler(prior, loglike, n_live=n_live, vectorized=True, pass_dict=False, seed=seed)
+    s.run(verbose=False, n_eff=n_eff, discard_exploration=True)
+    wall = time.perf_counter() - t0
+    pts, logw, _ = s.posterior()
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    nat = pr.to_natural(pts)
+    return {"wall_s": wall, "calls": target.calls, "n_eff": float(s.n_eff), "log_z": float(s.log_z),
+            "ess_per_min": float(s.n_eff) / (wall / 60),
+            "mean": {n: float(np.sum(w * nat[:, i])) for i, n in enumerate(pr.names)}}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "zoned", "matrix"])
+    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "nautilus"])
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=4100)
+    ap.add_argument("--json", metavar="OUT")
+    args = ap.parse_args(argv)
+    out = {}
+    for name in args.posteriors:
+        like, truth = posterior(name, args.seed)
+        print(f"{name}: {like.prior.ndim} parameters, {like.freq_hz.size} lines")
+        for engine in args.engines:
+            if engine == "nautilus":
+                r = run_nautilus(like, args.seed)
+                print(f"  nautilus: {r['wall_s']:.0f} s, {r['calls']} evaluations, n_eff {r['n_eff']:.0f}, "
+                      f"{r['ess_per_min']:.1f} ESS/min, log Z {r['log_z']:.1f}")
+            else:
+                r = run_emcee(like, args.seed, args.steps, args.workers)
+                print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
+                      f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
+                      f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}")
+            for k, v in truth.items():
+                if k in r["mean"]:
+                    print(f"    {k:22s} mean {r['mean'][k]:.4g}  truth {v:.4g}")
+            out[f"{name}/{engine}"] = r
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
