@@ -153,6 +153,8 @@ def cmd_cable(args) -> int:
         print(f"  what the law leaves: {r['qualifier']} (rms z {r['rms_z']:.2f}, {r['lines_off']} of {r['n_lines']} "
               f"lines off); {left}")
         print(f"  {_distortion_words(s['harmonics'])}")
+        if s.get("harmonic_refit"):
+            print(f"  {_refit_words(s['harmonic_refit'])}")
         print(f"  stored in {out}/")
     if len(fits) > 1:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
@@ -163,6 +165,13 @@ def cmd_cable(args) -> int:
             print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
                   "(a comparison rests on converged posteriors only)")
     return 0
+
+
+def _refit_words(r: dict) -> str:
+    """One line on a stored fit's harmonic refit (:func:`sbcal.inference.harmonic_refit.refit_harmonics`)."""
+    head = (f"harmonic refit on {r['lines']} line(s) ({r['basis']}; fixed point in {r['rounds']} round(s), last move "
+            f"{r['change']:.2f} SE; largest correction {100 * r['largest_correction']:.1f} %)")
+    return f"{head}: {'used' if r['used'] else 'not used'} — {r['reason']}"
 
 
 def _distortion_words(harmonics: dict) -> str:

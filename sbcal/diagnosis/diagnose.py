@@ -303,6 +303,14 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
             per_test.append({"test": t, "delta_elpd": d, "se": se, "rms_z_before": float(np.sqrt(np.mean(zb ** 2))),
                              "rms_z_after": float(np.sqrt(np.mean(za ** 2)))})
 
+    # 4b. the verdict's cable law refitted with the multi-harmonic solve where it is needed; what follows
+    # (secondary, what is left, curves, the stored run) reads the refit where it is used
+    refits = {}
+    if verdict == "strand_slip" and config.harmonics:
+        shown_fits, refits = _refit_harmonics(damper, shown_fits, seed=seed, workers=config.workers)
+        if any(r["used"] for r in refits.values()):
+            checks[verdict] = _check_model(shown_fits, sorted(shown_fits), case)
+
     # 5. secondary: locate again on the verdict's model, refit what composes with it
     secondary, final = None, None
     if config.secondary and verdict in EXTENSIONS and _composable(verdict):
@@ -323,7 +331,7 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
 
     result = {
         "damper": damper.name, "tests": tests, "seed": seed, "verdict": verdict, "qualifier": rem["qualifier"],
-        "remainder": rem, "discrepancy": disc,
+        "remainder": rem, "discrepancy": disc, "harmonic_refit": refits,
         "bench": {"path": str(data.source), "rows_sha256": rows_digest(data, damper.name),
                   "removed_runs": {t: list(data.removed_runs(damper.name, t)) for t in tests}},
         "rule": (f"a misfit when a line of the baseline is off (|z| beyond the t quantile at family-wise alpha = "
@@ -490,8 +498,31 @@ def curves_frame(doc: dict):
 def _cable_fits(damper, fits) -> dict:
     """The cable-law fits among a model's ``fits`` (those that carry a ``law``) as :class:`CableFit`, by key."""
     return {key: CableFit(damper=damper.name, state=key[1], law=f["law"], tests=f["tests"], effects=(),
-                          result=f["result"], like=f["like"], loo=f["loo"])
+                          result=f["result"], like=f["like"], loo=f["loo"], refit=f.get("refit"))
             for key, f in sorted(fits.items()) if "law" in f}
+
+
+def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
+    """The strand-slip verdict's cable fits refitted with the multi-harmonic solve where it is needed
+    (:func:`sbcal.inference.harmonic_refit.refit_harmonics`): ``(fits, records)``, each used refit in place of
+    its fit (its draws, likelihood, PSIS-LOO and posterior curves), ``records`` by cable state."""
+    from ..inference.checks import curve_moments
+    from ..inference.harmonic_refit import refit_harmonics
+
+    out, records = dict(fits), {}
+    for key, fit in _cable_fits(damper, fits).items():
+        refit = refit_harmonics(fit, seed=seed, workers=workers)
+        if refit is None:
+            continue
+        records[fit.state] = refit.refit
+        if refit.refit["used"]:
+            params = refit.result.flat()
+            mu_mean, mu_var, mu_median = (list(m) for m in zip(*map(curve_moments, refit.like.predict(params))))
+            out[key] = dict(fits[key], params=params, log_lik=refit.result.log_likelihood, mu_mean=mu_mean,
+                            mu_var=mu_var, mu_median=mu_median, convergence=refit.result.convergence_dict(),
+                            converged=refit.result.converged, result=refit.result, like=refit.like, loo=refit.loo)
+        out[key]["refit"] = refit.refit
+    return out, records
 
 
 def _store_cables(damper, cables, fits, *, store, seed, comparison) -> None:

@@ -65,6 +65,9 @@ class DiagnoseConfig:
         else are the engine's: :data:`sbcal.inference.sampler.POLICY`).
     workers : int
         Processes: fits run in parallel, one per process.
+    harmonics : bool
+        Refit a strand-slip verdict's cable law with the multi-harmonic solve where it is needed
+        (:func:`sbcal.inference.harmonic_refit.refit_harmonics`).
     """
 
     alpha: float = ALPHA
@@ -80,6 +83,7 @@ class DiagnoseConfig:
     draws: int = 250
     max_steps: int = 20000
     cable_max_steps: int = 8000
+    harmonics: bool = True
 
     def sampler(self, ndim: int, joint: bool = False, workers: int = 1) -> SamplerConfig:
         """The engine's settings of one fit; ``workers``: processes for its ensembles (the draws do not

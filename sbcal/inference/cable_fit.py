@@ -47,7 +47,7 @@ from .stats import elpd_difference, loo
 
 
 __all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
-           "cable_seed", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
+           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
@@ -85,6 +85,9 @@ class CableForward:
         Secondary effects of :data:`SECONDARY` applied on top.
     sections : int
         Gauss sections per arm of the cable model.
+    correction : ndarray of complex, shape (n_lines,), optional
+        The multi-harmonic solve over the first-harmonic model per line, ``f_uu / f_uu_first``, multiplying
+        the cable's ``f_uu`` (1 where the first harmonic suffices; :mod:`sbcal.inference.harmonic_refit`).
     """
 
     law: str
@@ -92,6 +95,7 @@ class CableForward:
     segments: np.ndarray
     effects: tuple = ()
     sections: int = DEFAULT_SECTIONS
+    correction: np.ndarray | None = field(default=None, compare=False)
     model: CableModel = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -109,17 +113,21 @@ class CableForward:
             fuu = fuu * np.exp(-1j * omega * np.asarray(chain["delay_s"], float).reshape(-1, 1))
         return fuu
 
+    def _corrected(self, fuu):
+        return fuu if self.correction is None else fuu * self.correction
+
     def __call__(self, damper: Damper, freq_hz, **params):
         cable, chain = self._split(params)
         fuu = self.model.dynamic_stiffness(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments, **cable)
-        return self._measured(freq_hz, fuu, chain)
+        return self._measured(freq_hz, self._corrected(fuu), chain)
 
     def state(self, damper: Damper, freq_hz, *, continuation: bool = True, **params):
-        """The cable's steady state (sections, curvature range, folds) and the measured ``f``."""
+        """The cable's steady state (sections, curvature range, folds; first harmonic) and the measured ``f``
+        (with the :attr:`correction`)."""
         cable, chain = self._split(params)
         st = self.model.state(damper, freq_hz, self.amplitude_mm_pp, segments=self.segments,
                               continuation=continuation, **cable)
-        return st, self._measured(freq_hz, st.f_uu, chain)
+        return st, self._measured(freq_hz, self._corrected(st.f_uu), chain)
 
     def harmonic_state(self, damper: Damper, freq_hz, *, harmonics: int, **params):
         """The same cable solved with ``harmonics`` odd harmonics (:class:`sbcal.model.cable_harmonics.HarmonicBalance`).
@@ -183,7 +191,7 @@ _START_NFEV = 60  # Gauss-Newton iterations per refinement
 _START_DE = (6, 60)  # differential evolution: population per dimension, generations
 
 
-def _polish(like: JointLikelihood, z0) -> tuple[np.ndarray, float]:
+def polish_mode(like: JointLikelihood, z0) -> tuple[np.ndarray, float]:
     """L-BFGS-B ascent of the log-posterior within the box from ``z0`` (value and central-difference
     gradient in one batched call); ``(z, log-posterior)``."""
     prior = like.prior
@@ -205,7 +213,7 @@ def _polish(like: JointLikelihood, z0) -> tuple[np.ndarray, float]:
 
 def cable_start(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
     """The start of a cable fit in sampled coordinates ``(ndim,)``: the highest log-posterior of
-    several local ascents (:func:`_polish`) from distinct places of the box.
+    several local ascents (:func:`polish_mode`) from distinct places of the box.
 
     Candidates: Gauss-Newton least-squares descents (trust region within the box, soft-L1 loss on
     the run means' standardised residuals, forward-difference Jacobian in one batched model call)
@@ -244,7 +252,7 @@ def cable_start(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
     de = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=per_dim, maxiter=generations, tol=1e-6,
                                 seed=s_de, polish=False, vectorized=True, updating="deferred", init="sobol")
     candidates.append(de.x)
-    best = max((_polish(like, c) for c in candidates), key=lambda t: t[1])
+    best = max((polish_mode(like, c) for c in candidates), key=lambda t: t[1])
     return best[0]
 
 
@@ -261,6 +269,9 @@ class CableFit:
     like : JointLikelihood
     loo : sbcal.inference.stats.Loo
         PSIS-LOO grouped by run (runs of all tests, in test order).
+    refit : dict, optional
+        The harmonic refit's record where one was made (:func:`sbcal.inference.harmonic_refit.refit_harmonics`):
+        JSON-ready, stored as ``harmonic_refit`` in the summary.
     """
 
     damper: str
@@ -271,6 +282,7 @@ class CableFit:
     result: object
     like: object
     loo: object
+    refit: dict | None = None
 
     def median(self) -> dict:
         return {n: float(np.median(v)) for n, v in self.result.draws.items()}
@@ -465,7 +477,7 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "acceptance": float(np.mean(res.acceptance)), "wall_s": res.wall_s, "n_draws": int(res.log_prob.size),
         "elpd_loo": fit.loo.elpd, "elpd_se": fit.loo.se, "tests_reached": _curvature_ranges(fit),
         **dict(zip(("remainder", "discrepancy"), _remainder(fit, curves))),
-        "harmonics": fit.harmonics,
+        "harmonics": fit.harmonics, "harmonic_refit": fit.refit,
         "prior": like.prior.as_dict(), "comparison": comparison, "versions": versions(),
         "seed_key": seed_key("cable", fit.damper, fit.state, fit.law, *fit.effects), **meta,
     }
@@ -527,10 +539,13 @@ def zoned_start(uniform: dict, prior: Prior) -> dict:
 
 
 def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, prior_path=None,
-                     workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
+                     workers: int = 2, progress: bool = True, harmonics: bool = True) -> tuple[dict, dict]:
     """Every cable state of a damper under every family (default: :func:`compared_laws` of
-    :data:`FITTED_LAWS`, then the best one's zoned law where :func:`zoned_candidate` says so);
-    ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of :func:`compare_families`."""
+    :data:`FITTED_LAWS`, then the best one's zoned law where :func:`zoned_candidate` says so), then the best
+    family's fit of each state refitted with the multi-harmonic solve on the lines that need it
+    (``harmonics``; :func:`sbcal.inference.harmonic_refit.refit_harmonics`: the fit kept carries the record
+    in ``refit``); ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of
+    :func:`compare_families` (of the first-harmonic fits)."""
     tests = list(data.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
     default = laws is None
@@ -554,5 +569,13 @@ def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, pri
             top = law[:-len(ZONED_SUFFIX)]  # its uniform family: the zoned fit starts from it
             fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[top].items()})
             comparison = compare_families(fits)
+    if harmonics:  # the best family refitted with the multi-harmonic solve where it is needed
+        from .harmonic_refit import refit_harmonics
+        best = comparison["best"]
+        for state, f in sorted(fits[best].items()):
+            label = f"{damper.name} cable {state} ({best}, harmonics)" if progress else None
+            refit = refit_harmonics(f, seed=seed, workers=workers, progress=label)
+            if refit is not None:
+                fits[best][state] = refit
     return fits, comparison
 

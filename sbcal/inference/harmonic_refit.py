@@ -1,0 +1,211 @@
+"""The harmonic refit: a cable fit with the multi-harmonic solve on the lines where the first harmonic misses.
+
+A cable fit uses the describing-function model (:class:`sbcal.model.cable.CableModel`); where the slipping
+cable distorts the base force, the bench's first harmonic is the multi-harmonic solve's
+(:class:`sbcal.model.cable_harmonics.HarmonicBalance`), not the first-harmonic model's. The solve costs
+0.3-1.6 s per 37-line sweep at one parameter set, too much for every draw of a posterior, so the refit
+carries it as a per-line correction ``c = f_uu / f_uu_first`` (the solve over the first-harmonic model,
+both at one parameter set) made at the current estimate and iterated to a fixed point:
+
+1. ``c`` at the plain fit's posterior median, on the lines to correct (1 elsewhere);
+2. the mode of the posterior with the model ``c f_uu_first(theta)`` (:func:`sbcal.inference.cable_fit.polish_mode`
+   from the last estimate), then ``c`` again at that mode; until ``c`` moves by less than
+   :data:`RESOLVE` of each line's standard error (magnitude and phase), at most ``max_rounds`` rounds;
+3. the posterior with the last ``c`` (the engine, from the mode).
+
+The assumption: ``c`` changes little across the posterior's width (it is a smooth function of the law's
+parameters, which the bench pins to a few per cent); ``c_spread`` in the record measures it, the largest
+change of ``c`` between the median and the 5 % / 95 % draws, in units of the lines' standard errors.
+
+Which lines: where the bench file carries the measured distortion, the harmonic switch's
+(:func:`sbcal.inference.distortion.harmonic_switch`: the gap is resolved and the recordings are distorted as
+the law predicts), and the refit is used when its posterior converged; without a measured distortion, every
+line whose predicted gap the data resolve (``> 2`` standard errors of the line's mean), and the refit is used
+when its PSIS-LOO beats the plain fit's by more than twice the standard error of the difference. A screen
+first: the corrected model's mode must beat the plain one's log-posterior by :data:`SCREEN_NATS` (the same
+parameters: a likelihood ratio) before its posterior is sampled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..core.seeds import job_seed
+from .cable_fit import CableFit, cable_config, polish_mode, sample_cable
+from .distortion import HARMONICS
+from .likelihood import JointLikelihood
+from .stats import elpd_difference, loo
+
+
+__all__ = ["RESOLVE", "SCREEN_NATS", "correction_at", "lines_to_correct", "harmonic_fixed_point", "refit_harmonics"]
+
+RESOLVE = 0.1
+"""The fixed point stops when the correction moves by less than this share of every corrected line's standard
+error of the mean (magnitude and phase)."""
+
+SCREEN_NATS = 2.0
+"""The corrected model's mode must beat the plain model's by this much log-posterior before its posterior
+is sampled (equal numbers of parameters: AIC's difference of 4)."""
+
+_RESOLVED = 2.0  # a predicted gap is resolved where it exceeds this many standard errors of the line's mean
+
+
+def _sigma_mean(like: JointLikelihood) -> np.ndarray:
+    """Standard errors of the lines' mean log-magnitude and phase [1, rad], (2, n_lines)."""
+    return np.concatenate([lk.sigma / np.sqrt(lk.n) for lk in like.likes], axis=1)
+
+
+def _flat(per_test: dict, tests) -> np.ndarray:
+    """A per-test JSON list (``None``: NaN) over the concatenated lines."""
+    return np.array([np.nan if v is None else float(v) for t in tests for v in per_test[t]])
+
+
+def correction_at(like: JointLikelihood, params: dict, lines) -> tuple[np.ndarray, np.ndarray]:
+    """The multi-harmonic solve over the first-harmonic model at one parameter set, per line.
+
+    Parameters
+    ----------
+    like : JointLikelihood
+        A cable state's likelihood (its forward model :class:`sbcal.inference.cable_fit.CableForward`).
+    params : dict
+        Natural values by name (floats).
+    lines : ndarray of bool, shape (n_lines,)
+        Where to correct.
+
+    Returns
+    -------
+    c : ndarray of complex, shape (n_lines,)
+        ``f_uu / f_uu_first`` of the cable on ``lines`` where the solve converged, 1 elsewhere.
+    solved : ndarray of bool, shape (n_lines,)
+        The solve converged.
+    """
+    st, _, _ = like.model.harmonic_state(like.damper, like.freq_hz, harmonics=HARMONICS,
+                                         **like.model_params({k: np.atleast_1d(v) for k, v in params.items()}))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = st.f_uu[0] / st.first_harmonic[0]
+    solved = st.converged[0] & np.isfinite(ratio)
+    return np.where(np.asarray(lines, bool) & solved, ratio, 1.0 + 0j), solved
+
+
+def lines_to_correct(fit: CableFit) -> tuple[np.ndarray, str]:
+    """The lines a refit corrects and what decides it: ``(mask (n_lines,), "measured distortion" | "PSIS-LOO")``."""
+    h = fit.harmonics
+    if "switch" in h:
+        return _flat(h["switch"], fit.tests) > 0, "measured distortion"
+    gap = _flat(h["gap"], fit.tests)
+    with np.errstate(invalid="ignore"):
+        return gap > _RESOLVED * _sigma_mean(fit.like)[0], "PSIS-LOO"
+
+
+def _with(like: JointLikelihood, c) -> JointLikelihood:
+    return JointLikelihood(like.likes, like.prior, replace(like.model, correction=c))
+
+
+def _change(c_new, c_old, sigma, lines) -> float:
+    """The largest move of the correction on ``lines``, in standard errors of the line's mean."""
+    if not lines.any():
+        return 0.0
+    r = c_new[lines] / c_old[lines]
+    return float(max(np.max(np.abs(np.log(np.abs(r))) / sigma[0, lines]),
+                     np.max(np.abs(np.angle(r)) / sigma[1, lines])))
+
+
+def harmonic_fixed_point(like: JointLikelihood, start: dict, lines, max_rounds: int = 4):
+    """The corrected model's mode and its correction, iterated to a fixed point (module docstring, 1-2).
+
+    Parameters
+    ----------
+    like : JointLikelihood
+        The plain (first-harmonic) likelihood of a cable state.
+    start : dict
+        Natural values by name where the first correction is made (the plain fit's posterior median).
+    lines : ndarray of bool, shape (n_lines,)
+    max_rounds : int
+
+    Returns
+    -------
+    z : ndarray, shape (ndim,)
+        The mode in sampled coordinates.
+    c : ndarray of complex, shape (n_lines,)
+        The correction at that mode.
+    rounds : int
+    change : float
+        The last round's move of the correction, in standard errors of the lines' means.
+    """
+    prior, sigma = like.prior, _sigma_mean(like)
+    z = prior.z_of(start)[0]
+    c, _ = correction_at(like, start, lines)
+    rounds, change = 0, np.inf
+    while rounds < max_rounds:
+        rounds += 1
+        z, _ = polish_mode(_with(like, c), z)
+        c_new, _ = correction_at(like, dict(zip(prior.names, prior.to_natural(z[None])[0])), lines)
+        change = _change(c_new, c, sigma, lines)
+        c = c_new
+        if change < RESOLVE:
+            break
+    return z, c, rounds, change
+
+
+def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 4, max_steps: int = 8000,
+                    progress: str | None = None) -> CableFit | None:
+    """The cable fit refitted with the multi-harmonic solve where it is needed (module docstring).
+
+    Parameters
+    ----------
+    fit : CableFit
+        The plain (first-harmonic) fit of one cable state.
+    seed : int
+        The user's seed; the refit's stream is keyed by what it is.
+    workers, max_steps : int
+        As :func:`sbcal.inference.cable_fit.cable_config`.
+    max_rounds : int
+        Rounds of the fixed point at most.
+    progress : str, optional
+
+    Returns
+    -------
+    CableFit or None
+        None where no line needs the solve. Otherwise the refit, whose ``refit`` record says (JSON-ready):
+        ``lines`` (how many), ``basis``, ``rounds``, ``change`` (the last move of the correction, in standard
+        errors), ``fixed_point`` (it fell below :data:`RESOLVE`), ``screen`` (mode log-posterior, corrected
+        minus plain), ``c_spread``, ``delta_elpd``/``se`` (refit minus plain, PSIS-LOO), ``largest_correction``
+        (``|c - 1|``), ``used`` (whether the refit replaces the plain fit) and ``reason``. Where the screen
+        fails, the returned fit is the plain one with the record (``used`` False, no posterior sampled).
+    """
+    like = fit.like
+    lines, basis = lines_to_correct(fit)
+    if not lines.any():
+        return None
+    prior = like.prior
+    median = fit.median()
+    _, lp_plain = polish_mode(like, prior.z_of(median)[0])
+    z, c, rounds, change = harmonic_fixed_point(like, median, lines, max_rounds)
+    corrected = _with(like, c)
+    lp_corr = float(corrected(z[None])[0])
+    record = {"lines": int(lines.sum()), "basis": basis, "rounds": rounds, "change": change,
+              "fixed_point": bool(change < RESOLVE), "screen": lp_corr - lp_plain,
+              "largest_correction": float(np.max(np.abs(c[lines] - 1)))}
+    if basis == "PSIS-LOO" and record["screen"] <= SCREEN_NATS:
+        return replace(fit, refit={**record, "used": False,
+                                   "reason": f"the corrected mode is {record['screen']:.1f} nats above the plain one "
+                                             f"(the screen asks {SCREEN_NATS:g})"})
+    stream = job_seed(seed, "cable", fit.damper, fit.state, fit.law, *fit.effects, "harmonics")
+    res = sample_cable(corrected, seed=stream, config=cable_config(prior.ndim, workers=workers, max_steps=max_steps),
+                       start=dict(zip(prior.names, prior.to_natural(z[None])[0])), progress=progress)
+    out = CableFit(damper=fit.damper, state=fit.state, law=fit.law, tests=fit.tests, effects=fit.effects, result=res,
+                   like=corrected, loo=loo(res.log_likelihood))
+    d, se = elpd_difference(fit.loo, out.loo)
+    flat, sigma = res.flat(), _sigma_mean(like)
+    spread = 0.0
+    for q in (0.05, 0.95):
+        cq, _ = correction_at(like, {k: float(np.quantile(v, q)) for k, v in flat.items()}, lines)
+        spread = max(spread, _change(cq, c, sigma, lines))
+    used = bool(res.converged) and (basis == "measured distortion" or d > 2 * se)
+    reason = ("posterior not converged" if not res.converged else
+              "the recordings' distortion confirms the law's" if basis == "measured distortion" else
+              f"PSIS-LOO {d:+.1f} +- {se:.1f} nats" + ("" if used else ": not above twice its standard error"))
+    record.update(c_spread=spread, delta_elpd=d, se=se, converged=bool(res.converged), used=used, reason=reason)
+    return replace(out, refit=record) if used else replace(fit, refit=record)
