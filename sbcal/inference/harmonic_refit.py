@@ -199,8 +199,8 @@ def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 
         return replace(fit, refit={**record, "rounds": 1, "change": changes[-1], "changes": changes,
                                    "fixed_point": bool(changes[-1] < RESOLVE),
                                    "largest_correction": float(np.max(np.abs(c[lines] - 1))), "used": False,
-                                   "reason": f"the corrected mode is {screen:.1f} nats above the plain one after one "
-                                             f"round (the screen asks {SCREEN_NATS:g})"})
+                                   "reason": f"the corrected mode's log-posterior is {screen:+.1f} nats against the plain "
+                                             f"one's after one round (the screen asks more than +{SCREEN_NATS:g})"})
     if changes[-1] >= RESOLVE and max_rounds > 1:
         z, c, more = harmonic_fixed_point(like, dict(zip(prior.names, prior.to_natural(z[None])[0])), lines,
                                           max_rounds - 1)
