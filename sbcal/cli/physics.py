@@ -129,6 +129,7 @@ def cmd_cable(args) -> int:
     from dataclasses import asdict
 
     from ..inference.cable_fit import fit_damper_cable, store_cable
+    from ..inference.harmonic_refit import refit_harmonics
     from ..model.damper import resolve_damper
 
     damper = resolve_damper(args.damper)
@@ -137,7 +138,9 @@ def cmd_cable(args) -> int:
     fits, comparison = fit_damper_cable(damper, data, laws=laws, seed=args.seed, prior_path=args.priors,
                                         workers=args.workers, progress=not args.quiet)
     best = comparison["best"]
-    for state, fit in sorted(fits[best].items()):
+    for state, fit in sorted(fits[best].items()):  # refitted with the multi-harmonic solve where it is needed
+        label = None if args.quiet else f"{damper.name} cable {state} ({best}, harmonics)"
+        fit = refit_harmonics(fit, seed=args.seed, workers=args.workers, progress=label) or fit
         out = cable_dir(args.runs, damper.name, state)
         s = store_cable(fit, out, meta={"seed": args.seed, "made_by": args.command_line, "damper_values": asdict(damper)},
                         comparison=comparison if len(fits) > 1 else None)

@@ -539,13 +539,11 @@ def zoned_start(uniform: dict, prior: Prior) -> dict:
 
 
 def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, prior_path=None,
-                     workers: int = 2, progress: bool = True, harmonics: bool = True) -> tuple[dict, dict]:
+                     workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
     """Every cable state of a damper under every family (default: :func:`compared_laws` of
-    :data:`FITTED_LAWS`, then the best one's zoned law where :func:`zoned_candidate` says so), then the best
-    family's fit of each state refitted with the multi-harmonic solve on the lines that need it
-    (``harmonics``; :func:`sbcal.inference.harmonic_refit.refit_harmonics`: the fit kept carries the record
-    in ``refit``); ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of
-    :func:`compare_families` (of the first-harmonic fits)."""
+    :data:`FITTED_LAWS`, then the best one's zoned law where :func:`zoned_candidate` says so);
+    ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of :func:`compare_families`.
+    The harmonic refit comes after (:func:`sbcal.inference.harmonic_refit.refit_harmonics`)."""
     tests = list(data.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
     default = laws is None
@@ -569,13 +567,5 @@ def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, pri
             top = law[:-len(ZONED_SUFFIX)]  # its uniform family: the zoned fit starts from it
             fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[top].items()})
             comparison = compare_families(fits)
-    if harmonics:  # the best family refitted with the multi-harmonic solve where it is needed
-        from .harmonic_refit import refit_harmonics
-        best = comparison["best"]
-        for state, f in sorted(fits[best].items()):
-            label = f"{damper.name} cable {state} ({best}, harmonics)" if progress else None
-            refit = refit_harmonics(f, seed=seed, workers=workers, progress=label)
-            if refit is not None:
-                fits[best][state] = refit
     return fits, comparison
 
