@@ -45,7 +45,7 @@ from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
-from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits, _zoned_law
+from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits, _zoned_law, posterior_record
 from .remainder import remainder
 from .locate import _band_excess, _band_rms, _bands, _rocking_signature, _screen, _signatures, _statistics
 from .words import _parameters
@@ -506,7 +506,6 @@ def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
     """The strand-slip verdict's cable fits refitted with the multi-harmonic solve where it is needed
     (:func:`sbcal.inference.harmonic_refit.refit_harmonics`): ``(fits, records)``, each used refit in place of
     its fit (its draws, likelihood, PSIS-LOO and posterior curves), ``records`` by cable state."""
-    from ..inference.checks import curve_moments
     from ..inference.harmonic_refit import refit_harmonics
 
     out, records = dict(fits), {}
@@ -516,12 +515,8 @@ def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
             continue
         records[fit.state] = refit.refit
         if refit.refit["used"]:
-            params = refit.result.flat()
-            mu_mean, mu_var, mu_median = (list(m) for m in zip(*map(curve_moments, refit.like.predict(params))))
-            out[key] = dict(fits[key], params=params, log_lik=refit.result.log_likelihood, mu_mean=mu_mean,
-                            mu_var=mu_var, mu_median=mu_median, convergence=refit.result.convergence_dict(),
-                            converged=refit.result.converged, result=refit.result, like=refit.like, loo=refit.loo)
-        out[key]["refit"] = refit.refit
+            out[key] = dict(fits[key], **posterior_record(refit.like, fit.tests, refit.result))
+        out[key] = dict(out[key], refit=refit.refit)
     return out, records
 
 

@@ -23,7 +23,7 @@ from ..model.hysteresis import FITTED_LAWS
 from ..model.zones import ZONED_SUFFIX
 
 
-__all__ = ["DiagnoseConfig"]
+__all__ = ["DiagnoseConfig", "posterior_record"]
 
 _QUANTITIES = ("magnitude", "phase")
 
@@ -171,15 +171,20 @@ def _fit(job: FitJob):
 
 def _posterior(job: FitJob, res) -> dict:
     """An engine result -> what the diagnosis needs: model curves per test (in ``tests``), pointwise
-    log-likelihood, convergence."""
-    like = job.target
+    log-likelihood, convergence (:func:`posterior_record`)."""
+    return posterior_record(job.target, job.tests, res)
+
+
+def posterior_record(like, tests, res) -> dict:
+    """A posterior of ``like`` (a test's or a cable state's, over ``tests``) as the diagnosis keeps it: draws,
+    the posterior curves' mean, variance and median per test, pointwise log-likelihood, PSIS-LOO, convergence."""
     params = res.flat()
     joint = isinstance(like, JointLikelihood)
     mus = like.predict(params) if joint else [like.predict(params)]
     mu_mean, mu_var, mu_median = (list(m) for m in zip(*map(curve_moments, mus)))
     return dict(params=params, names=like.prior.names, log_lik=res.log_likelihood, mu_mean=mu_mean, mu_var=mu_var,
                 mu_median=mu_median, convergence=res.convergence_dict(), converged=res.converged,
-                result=res, like=like, n_params=like.prior.ndim, tests=job.tests, loo=loo(res.log_likelihood))
+                result=res, like=like, n_params=like.prior.ndim, tests=tuple(tests), loo=loo(res.log_likelihood))
 
 
 def _run_fits(jobs, config, label) -> dict:

@@ -27,7 +27,7 @@ import numpy as np
 from ..model.cable_harmonics import DEFAULT_HARMONICS
 
 
-__all__ = ["HARMONICS", "AGREEMENT", "predicted_distortion", "harmonic_switch"]
+__all__ = ["HARMONICS", "AGREEMENT", "RESOLVED", "line_standard_errors", "predicted_distortion", "harmonic_switch"]
 
 HARMONICS = DEFAULT_HARMONICS
 """Odd harmonics solved (orders 1, 3, 5, 7, 9): the multi-harmonic solve's default."""
@@ -54,7 +54,15 @@ AGREEMENT = 0.5
 """The measured distortion must be at least this share of the predicted one for the data to confirm it (and at
 most its inverse: a law that predicts a third of what is measured is not the cable's either)."""
 
-_RESOLVED = 2.0  # a gap is resolved by the data where it exceeds this many standard errors of the line's mean
+RESOLVED = 2.0
+"""A gap is resolved by the data where it exceeds this many standard errors of the line's mean."""
+
+
+def line_standard_errors(like) -> np.ndarray:
+    """Standard errors of the lines' mean log-magnitude [1] and phase [rad] over the concatenated lines of a
+    joint likelihood (the noise model's sigma over sqrt(runs)), shape (2, n_lines)."""
+    return np.concatenate([lk.sigma / np.sqrt(lk.n) for lk in like.likes], axis=1)
+
 
 
 def harmonic_switch(predicted, measured, gap, sigma_mean) -> tuple[np.ndarray, np.ndarray]:
@@ -82,7 +90,7 @@ def harmonic_switch(predicted, measured, gap, sigma_mean) -> tuple[np.ndarray, n
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = m / p
         agrees = np.isfinite(ratio) & (ratio >= AGREEMENT) & (ratio <= 1 / AGREEMENT)
-        switch = agrees & (g > _RESOLVED * np.asarray(sigma_mean, float))
+        switch = agrees & (g > RESOLVED * np.asarray(sigma_mean, float))
     return switch, agrees
 
 
@@ -134,7 +142,7 @@ def predicted_distortion(like, params: dict, tests) -> dict:
     }
     measured = np.concatenate([lk.measured_distortion for lk in like.likes])
     if np.isfinite(measured).any():
-        sigma_mean = np.concatenate([lk.sigma[0] / np.sqrt(lk.n) for lk in like.likes])
+        sigma_mean = line_standard_errors(like)[0]
         switch, agrees = harmonic_switch(distortion, measured, gap, sigma_mean)
         have = np.isfinite(measured) & np.isfinite(distortion)
         big = have & (distortion > 0.01)

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..core.seeds import job_seed
 from .cable_fit import CableFit, cable_config, polish_mode, sample_cable
-from .distortion import HARMONICS
+from .distortion import HARMONICS, RESOLVED, line_standard_errors
 from .likelihood import JointLikelihood
 from .stats import elpd_difference, loo
 
@@ -54,13 +54,7 @@ SCREEN_NATS = 2.0
 """The corrected model's mode must beat the plain model's by this much log-posterior before its posterior
 is sampled (equal numbers of parameters: AIC's difference of 4)."""
 
-_RESOLVED = 2.0  # a predicted gap is resolved where it exceeds this many standard errors of the line's mean
 _SPREAD_DRAWS = 6  # posterior draws at which the correction's spread is measured
-
-
-def _sigma_mean(like: JointLikelihood) -> np.ndarray:
-    """Standard errors of the lines' mean log-magnitude and phase [1, rad], (2, n_lines)."""
-    return np.concatenate([lk.sigma / np.sqrt(lk.n) for lk in like.likes], axis=1)
 
 
 def _flat(per_test: dict, tests) -> np.ndarray:
@@ -107,7 +101,12 @@ def lines_to_correct(fit: CableFit) -> tuple[np.ndarray, str]:
         return _flat(h["switch"], fit.tests) > 0, "measured distortion"
     gap = _flat(h["gap"], fit.tests)
     with np.errstate(invalid="ignore"):
-        return gap > _RESOLVED * _sigma_mean(fit.like)[0], "PSIS-LOO"
+        return gap > RESOLVED * line_standard_errors(fit.like)[0], "PSIS-LOO"
+
+
+def _at(prior, z) -> dict:
+    """Natural values by name (floats) at sampled coordinates ``z`` (ndim,)."""
+    return dict(zip(prior.names, prior.to_natural(z[None])[0]))
 
 
 def _with(like: JointLikelihood, c) -> JointLikelihood:
@@ -144,13 +143,13 @@ def harmonic_fixed_point(like: JointLikelihood, start: dict, lines, max_rounds: 
     changes : list of float
         Each round's move of the correction, in standard errors of the lines' means (the last decides).
     """
-    prior, sigma = like.prior, _sigma_mean(like)
+    prior, sigma = like.prior, line_standard_errors(like)
     z = prior.z_of(start)[0]
     c, _ = correction_at(like, start, lines)
     changes = []
     while len(changes) < max_rounds:
         z, _ = polish_mode(_with(like, c), z)
-        c_new, _ = correction_at(like, dict(zip(prior.names, prior.to_natural(z[None])[0])), lines, previous=c)
+        c_new, _ = correction_at(like, _at(prior, z), lines, previous=c)
         changes.append(_change(c_new, c, sigma, lines))
         c = c_new
         if changes[-1] < RESOLVE:
@@ -202,7 +201,7 @@ def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 
                                    "reason": f"the corrected mode's log-posterior is {screen:+.1f} nats against the plain "
                                              f"one's after one round (the screen asks more than +{SCREEN_NATS:g})"})
     if changes[-1] >= RESOLVE and max_rounds > 1:
-        z, c, more = harmonic_fixed_point(like, dict(zip(prior.names, prior.to_natural(z[None])[0])), lines,
+        z, c, more = harmonic_fixed_point(like, _at(prior, z), lines,
                                           max_rounds - 1)
         changes += more
     corrected = _with(like, c)
@@ -210,11 +209,11 @@ def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 
                   largest_correction=float(np.max(np.abs(c[lines] - 1))))
     stream = job_seed(seed, "cable", fit.damper, fit.state, fit.law, *fit.effects, "harmonics")
     res = sample_cable(corrected, seed=stream, config=cable_config(prior.ndim, workers=workers, max_steps=max_steps),
-                       start=dict(zip(prior.names, prior.to_natural(z[None])[0])), progress=progress)
+                       start=_at(prior, z), progress=progress)
     out = CableFit(damper=fit.damper, state=fit.state, law=fit.law, tests=fit.tests, effects=fit.effects, result=res,
                    like=corrected, loo=loo(res.log_likelihood))
     d, se = elpd_difference(fit.loo, out.loo)
-    flat, sigma = res.flat(), _sigma_mean(like)
+    flat, sigma = res.flat(), line_standard_errors(like)
     spread = []  # the correction at a few draws against the one the fit used
     n = next(iter(flat.values())).size
     for i in np.linspace(0, n - 1, _SPREAD_DRAWS).astype(int):
