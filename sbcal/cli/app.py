@@ -16,6 +16,7 @@ from .acquisition import add_import, cmd_import
 from .calibration import (add_bench, add_data, add_map, add_report, add_run, add_sample, add_simulate, cmd_bench,
                           cmd_data, cmd_map, cmd_report, cmd_run, cmd_sample, cmd_simulate)
 from .design import add_design, add_predict, add_span, cmd_design, cmd_predict, cmd_span
+from .lot import add_batch, cmd_batch
 from .options import Parser
 from .physics import add_cable, add_diagnose, cmd_cable, cmd_diagnose
 
@@ -37,6 +38,7 @@ _COMMANDS = {
     "predict": (add_predict, cmd_predict),
     "span": (add_span, cmd_span),
     "design": (add_design, cmd_design),
+    "batch": (add_batch, cmd_batch),
 }
 
 

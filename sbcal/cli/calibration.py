@@ -274,7 +274,10 @@ def add_run(sub):
                                    "unchanged (bench rows, damper file, prior file, settings, seed, sbcal version); "
                                    "each stage says reused or redone, and why.")
     p.add_argument("--damper", action="append", metavar="NAME|PATH",
-                   help="damper (repeatable; default: every damper of the bench file that is bundled)")
+                   help="damper (repeatable; default: every damper of the bench file that is bundled); with "
+                        "--design, a unit's name in the bench file")
+    p.add_argument("--design", metavar="NAME|PATH",
+                   help="the bench file's dampers are units of this design (a production lot: then sbcal batch)")
     bench_options(p)
     p.add_argument("--params", default="theta1", metavar="SET")
     p.add_argument("--priors", metavar="PATH", help="prior file (default: the bundled priors/default.toml)")
@@ -288,15 +291,21 @@ def add_run(sub):
 
 
 def cmd_run(args) -> int:
+    from dataclasses import replace
+
     from ..model.damper import bundled_dampers, resolve_damper
     from ..pipeline import executor_for, run
 
     bench = bench_for(args)
-    names = args.damper or [d for d in bench.dampers() if d in bundled_dampers()]
-    if not names:
-        raise InputError(f"{bench.source}: none of its dampers ({', '.join(bench.dampers())}) is bundled; "
-                         "name a description with --damper PATH")
-    dampers = [resolve_damper(n) for n in names]
+    if args.design:  # a lot: every damper of the file (or each --damper name) is a unit of this design
+        design = resolve_damper(args.design)
+        dampers = [replace(design, name=n) for n in (args.damper or bench.dampers())]
+    else:
+        names = args.damper or [d for d in bench.dampers() if d in bundled_dampers()]
+        if not names:
+            raise InputError(f"{bench.source}: none of its dampers ({', '.join(bench.dampers())}) is bundled; "
+                             "name a description with --damper PATH, or the design of a lot's units with --design")
+        dampers = [resolve_damper(n) for n in names]
     check_dampers(bench, dampers)
     settings = settings_from(args)
     with executor_for(args.scheduler) as executor:
@@ -327,6 +336,11 @@ def add_bench(sub):
     p.add_argument("--ideal", action="store_true", help="no run-to-run scatter, noise or outliers")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
                    help="the bench CSV; with --raw the truth lines of the raw files (no line noise or outliers)")
+    lot = p.add_argument_group("a production lot (docs/batch.md)")
+    lot.add_argument("--units", type=int, metavar="N",
+                     help="record N units of the design drawn from a population (EJ 5 %%, loss factor 10 %%, slip "
+                          "scale 10 %%), named <damper>-u01 ...")
+    lot.add_argument("--outlier-unit", type=int, metavar="K", help="with --units: unit K (1-based) planted at EJ -15 %%")
     raw = p.add_argument_group("raw recordings (time-domain strand slip only; docs/virtual_bench.md)")
     raw.add_argument("--raw", metavar="DIR", help="write each run's time series as DIR/<damper>_<test>_run<k>.tdms "
                                                   "(or .h5) and the channel map DIR/channels.toml; -o gets their "
@@ -375,6 +389,26 @@ def _bench_raw(args, damper, config, tests) -> int:
     return 0
 
 
+def _bench_lot(args, damper, config, tests) -> int:
+    """``sbcal bench --units N``: a virtual lot of one design (:mod:`sbcal.simulate.virtual_lot`)."""
+    from ..data.bench import write_bench
+    from ..simulate.virtual_lot import LotConfig, record_lot
+
+    if args.units < 1:
+        raise InputError(f"--units {args.units}: must be >= 1")
+    if args.outlier_unit is not None and not 1 <= args.outlier_unit <= args.units:
+        raise InputError(f"--outlier-unit {args.outlier_unit}: expected a unit 1..{args.units}")
+    lot = LotConfig(units=args.units, bench=config,
+                    outlier=None if args.outlier_unit is None else args.outlier_unit - 1)
+    frame, truth = record_lot(damper, lot, tests, rng=np.random.default_rng(args.seed))
+    write_bench(frame, args.output)
+    planted = [u for u, t in truth.items() if t["outlier"]]
+    print(f"wrote {args.output}: {args.units} units of {damper.name} ({next(iter(truth))} ...), {len(tests)} tests x "
+          f"{args.runs} runs, effects: {', '.join(config.effects) or 'none'}"
+          + (f"; {planted[0]} planted at EJ {lot.outlier_ej:+.0%}" if planted else ""))
+    return 0
+
+
 def cmd_bench(args) -> int:
     from ..data.bench import write_bench
     from ..model.damper import resolve_damper
@@ -402,6 +436,10 @@ def cmd_bench(args) -> int:
     for flag in ("raw_format", "sample_rate", "sensor_noise", "hold_periods"):
         if getattr(args, flag) is not None:
             raise InputError(f"--{flag.replace('_', '-')}: only with --raw DIR")
+    if args.units is not None:
+        return _bench_lot(args, damper, config.ideal() if args.ideal else config, tests)
+    if args.outlier_unit is not None:
+        raise InputError("--outlier-unit: only with --units N")
     frame = record(damper, config.ideal() if args.ideal else config, tests, rng=np.random.default_rng(args.seed))
     write_bench(frame, args.output)
     print(f"wrote {args.output}: {damper.name}, {len(tests)} tests x {args.runs} runs, "

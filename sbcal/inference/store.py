@@ -10,6 +10,7 @@
     <runs>/<damper>/predict-<new>-<state>/                     a new damper from that cable (beside it)
     <runs>/span/<label>/                                       span studies
     <runs>/design/<label>/                                     design searches (sbcal design)
+    <runs>/batch/                                              the lot as a population (sbcal batch)
 
 Inside a run directory the files are its writer's (:mod:`sbcal.inference.runs`,
 :func:`sbcal.inference.cable_fit.store_cable`, ...); ``summary.json`` is written last, so a directory
@@ -23,19 +24,20 @@ from pathlib import Path
 
 __all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "run_dirs", "point_fit_path", "data_path",
            "diagnose_path", "map_path", "cable_dir", "cable_dirs", "cable_state_of", "owner", "prediction_dir", "span_dir",
-           "span_dirs", "design_dir", "design_dirs"]
+           "span_dirs", "design_dir", "design_dirs", "batch_dir"]
 
 SUMMARY = "summary.json"
 POSTERIOR = "posterior.nc"
 _CABLE = "cable-"
 _SPAN = "span"
 _DESIGN = "design"
+_BATCH = "batch"
 
 
 def dampers(runs) -> list[str]:
-    """The dampers a store holds results of (its directories but the span studies' and designs'), sorted."""
+    """The dampers a store holds results of (its directories but the span studies', designs' and batch's), sorted."""
     root = Path(runs)
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name not in (_SPAN, _DESIGN)) if root.is_dir() else []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name not in (_SPAN, _DESIGN, _BATCH)) if root.is_dir() else []
 
 
 def damper_dir(runs, damper: str) -> Path:
@@ -127,3 +129,8 @@ def design_dirs(runs) -> list[Path]:
     """The finished design searches of a store."""
     root = Path(runs) / _DESIGN
     return [d for d in sorted(root.iterdir()) if (d / SUMMARY).is_file()] if root.is_dir() else []
+
+
+def batch_dir(runs) -> Path:
+    """``<runs>/batch``: the lot's population (:mod:`sbcal.inference.batch`)."""
+    return Path(runs) / _BATCH

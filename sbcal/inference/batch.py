@@ -1,0 +1,308 @@
+"""A lot of dampers as a population (``sbcal batch``): the units' stored posteriors -> the design.
+
+Reads every unit's per-test posteriors from a run store (:func:`read_lot`: one design, the same tests
+and prior boxes, converged), fits the population by reweighting them
+(:mod:`sbcal.inference.population`, the one sampling engine on its hyper-parameters) and stores
+(:func:`write_batch`, under :func:`sbcal.inference.store.batch_dir`):
+
+- ``summary.json``: the population per dimension (its median unit, the unit scatter, the next unit),
+  per unit its shrunk estimate, outlier probability and reweighting ESS, the convergence, seed, versions;
+- ``population.csv`` and ``units.csv``: the same as tables;
+- ``population.nc``: the hyper-parameters' draws (ArviZ), for plots and later stages.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..core._io import atomic_path, write_json
+from ..core.errors import InputError
+from ..core.seeds import job_seed, seed_key
+from .population import (MIN_ESS, OUTLIER_SCALE, HyperPrior, PopulationModel, PopulationTarget, UnitDraws,
+                         from_population_coordinates, outlier_probabilities, predictive_draws, shrunk_draws,
+                         to_population_coordinates, unit_ess)
+from .runs import posterior_draws, read_summary, versions
+from .sampler import SamplerConfig, sample
+from .stats import inference_data
+from .store import SUMMARY, batch_dir, dampers as stored_dampers
+
+
+__all__ = ["DEFAULT_PARAMS", "Lot", "read_lot", "fit_population", "write_batch", "read_batch", "headline",
+           "OUTLIER_LINE"]
+
+DEFAULT_PARAMS = ("EJ", "beta")
+OUTLIER_LINE = 0.5
+"""A unit is named an outlier when its posterior probability of being one is at least this."""
+
+MAX_DRAWS = 500
+"""Joint draws kept per unit (its per-test draws paired at random): the reweighting's sample."""
+
+_DESIGN_EXEMPT = ("name", "source", "description", "tolerance")
+_UNITS = {"EJ": "N m^2"}
+_QUANT = (0.05, 0.5, 0.95)
+
+
+@dataclass(frozen=True)
+class Lot:
+    """The units of one design with the tests they all have.
+
+    Attributes
+    ----------
+    units : tuple of str
+    tests : tuple of str
+        By amplitude.
+    params : tuple of str
+    boxes : dict
+        Parameter -> the prior box every unit was sampled under ``(log_scale, lower, upper)``.
+    draws : dict
+        Unit -> ``{(parameter, test): draws (n,)}``.
+    design : dict
+        The shared damper values (geometry, masses, nominal offsets).
+    excluded : dict
+        Unit -> why it was left out (an unconverged test).
+    paramset : str
+    """
+
+    units: tuple
+    tests: tuple
+    params: tuple
+    boxes: dict
+    draws: dict
+    design: dict
+    excluded: dict
+    paramset: str
+
+
+def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset: str = "theta1") -> Lot:
+    """The lot in a run store (one-line InputError for a lot that cannot be one)."""
+    names = list(dampers) if dampers else stored_dampers(runs)
+    params = tuple(dict.fromkeys(params))
+    stored, design, design_of, boxes, excluded = {}, None, None, {}, {}
+    for unit in names:
+        found = list(posterior_draws(runs, unit, paramset, params))
+        if not found:
+            raise InputError(f"{runs}: no finished {paramset} posteriors of unit {unit!r} "
+                             f"(run 'sbcal sample --all --damper ...' for it first)")
+        bad = [t.test for t in found if not t.summary.get("converged", False)]
+        if bad:
+            excluded[unit] = f"posterior of {', '.join(bad)} did not converge"
+            continue
+        for t in found:
+            missing = [p for p in params if p not in t.draws]
+            if missing:
+                raise InputError(f"{runs}/{unit}/{t.test}/{paramset}: parameter {missing[0]!r} not stored "
+                                 f"(stored: {', '.join(t.summary['parameters'])})")
+            cfg = t.summary["config"]
+            values = {k: v for k, v in cfg["damper_values"].items() if k not in _DESIGN_EXEMPT}
+            if design is None:
+                design, design_of = values, unit
+            for key in sorted(set(design) | set(values)):
+                if design.get(key) != values.get(key):
+                    raise InputError(f"{runs}/{unit}: damper field {key!r} is {values.get(key)!r}, unit "
+                                     f"{design_of!r} has {design.get(key)!r}: units of different designs")
+            for p in params:
+                box = cfg["prior"]["parameters"][p]
+                b = (box["dist"] == "loguniform", float(box["lower"]), float(box["upper"]))
+                if boxes.setdefault(p, b) != b:
+                    raise InputError(f"{runs}/{unit}/{t.test}/{paramset}: prior of {p!r} is {b[1]:g}..{b[2]:g}, "
+                                     f"other units' {boxes[p][1]:g}..{boxes[p][2]:g}: sample the lot under one prior")
+        stored[unit] = {t.test: t for t in found}
+    units = tuple(stored)
+    if len(units) < 3:
+        why = "".join(f"; {u} left out: {r}" for u, r in excluded.items())
+        raise InputError(f"{runs}: {len(units)} unit(s) with finished {paramset} posteriors "
+                         f"({', '.join(units) or 'none'}); a population needs at least 3{why}")
+    common = set.intersection(*(set(s) for s in stored.values()))
+    if tests:
+        for t in tests:
+            lacking = [u for u in units if t not in stored[u]]
+            if lacking:
+                raise InputError(f"{runs}: test {t!r} not stored for unit {lacking[0]!r}")
+        chosen = list(dict.fromkeys(tests))
+    else:
+        chosen = sorted(common)
+        if not chosen:
+            raise InputError(f"{runs}: the units have no test in common")
+    amp = {t: stored[units[0]][t].amplitude for t in chosen}
+    chosen = tuple(sorted(chosen, key=lambda t: (amp[t] is None, amp[t] or 0.0, t)))
+    draws = {u: {(p, t): stored[u][t].draws[p] for p in params for t in chosen} for u in units}
+    return Lot(units=units, tests=chosen, params=params, boxes=boxes, draws=draws, design=design,
+               excluded=excluded, paramset=paramset)
+
+
+def _unit_draws(lot: Lot, model: PopulationModel, rng: np.random.Generator) -> list[UnitDraws]:
+    """Each unit's joint draws: its tests' independent posteriors paired at random (a draw of their product)."""
+    out = []
+    for u in lot.units:
+        n = min(min(v.size for v in lot.draws[u].values()), MAX_DRAWS)
+        cols, logp = [], np.zeros(n)
+        for p, t in model.dims:
+            v = lot.draws[u][(p, t)]
+            x, lp = to_population_coordinates(v[rng.permutation(v.size)[:n]], lot.boxes[p])
+            cols.append(x)
+            logp += lp
+        out.append(UnitDraws(u, np.stack(cols, axis=1), logp))
+    return out
+
+
+def _mean_box(units: list[UnitDraws]) -> tuple:
+    """A flat prior on each mean over the units' medians widened by twice their range plus one
+    (a factor e in a log coordinate): wide against any lot, narrow enough for the start's search."""
+    med = np.stack([np.median(u.x, axis=0) for u in units])
+    lo, hi = med.min(axis=0), med.max(axis=0)
+    pad = 2 * (hi - lo) + 1.0
+    return tuple((float(a - b), float(c + b)) for a, c, b in zip(lo, hi, pad))
+
+
+def _q(v) -> list:
+    return [float(x) for x in np.quantile(v, _QUANT)]
+
+
+def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig(), progress: str | None = None,
+                   n_summary: int = 400) -> tuple[dict, dict]:
+    """Fit the population of a lot.
+
+    Returns
+    -------
+    doc : dict
+        The ``summary.json`` document (:func:`headline` reads it).
+    draws : dict
+        Hyper-parameter draws by name ``(n_chains, n_draws)`` and the next unit's draws per dimension
+        (natural units, ``(n_summary,)``), for :func:`write_batch`.
+    """
+    s_pair, s_sample, s_after = job_seed(seed, "batch").spawn(3)
+    blocks = tuple((p, lot.tests) for p in lot.params)
+    probe = PopulationModel(blocks=blocks, hyper=HyperPrior(mean_box=((0, 1),) * len(lot.params) * len(lot.tests)))
+    units = _unit_draws(lot, probe, np.random.default_rng(s_pair))
+    model = PopulationModel(blocks=blocks, hyper=HyperPrior(mean_box=_mean_box(units)))
+    target = PopulationTarget(model, units)
+    med = np.stack([np.median(u.x, axis=0) for u in units])
+    names = model.hyper_names()
+    start = {**dict(zip(names["mean"], np.median(med, axis=0))),
+             **dict(zip(names["scatter"], np.clip(med.std(axis=0, ddof=1), 1e-3, 5.0))),
+             **{n: 0.5 for n in names["correlation"]}, **{n: 0.05 for n in names["outlier"]}}
+    result = sample(target, seed=s_sample, config=config, start=start, progress=progress)
+    flat = result.flat()
+    rng = np.random.default_rng(s_after)
+    pick = rng.choice(flat[result.names[0]].size, size=min(n_summary, flat[result.names[0]].size), replace=False)
+    sub = {k: v[pick] for k, v in flat.items()}
+    p_out, p_block = outlier_probabilities(target, sub)
+    ess = unit_ess(target, sub)
+    shrunk = shrunk_draws(target, sub, rng)
+    nxt = predictive_draws(model, sub, rng)
+
+    population = []
+    for i, (p, t) in enumerate(model.dims):
+        label = model.label(p, t)
+        mean_x = flat[f"{label}.mean"]
+        tau = flat[f"{label}.scatter"]
+        box = lot.boxes[p]
+        # the unit scatter as a relative spread of the value: d ln x = dx (log) or (1 - u) dx (logit)
+        rel = tau if box[0] else tau * (1 - (from_population_coordinates(mean_x, box) - box[1]) / (box[2] - box[1]))
+        population.append({"parameter": p, "test": t, "unit": _UNITS.get(p, "1"),
+                           "median_unit": _q(from_population_coordinates(mean_x, box)),
+                           "scatter_percent": _q(100 * rel), "scatter_coordinate": _q(tau),
+                           "next_unit": _q(from_population_coordinates(nxt[:, i], box))})
+    per_unit = []
+    for j, u in enumerate(units):
+        values = {}
+        for i, (p, t) in enumerate(model.dims):
+            box = lot.boxes[p]
+            values[model.label(p, t)] = {"own": _q(from_population_coordinates(u.x[:, i], box)),
+                                         "shrunk": _q(from_population_coordinates(shrunk[j, :, i], box))}
+        per_unit.append({"unit": u.name, "outlier_probability": float(p_out[j]),
+                         "outlier_in": {p: float(p_block[k, j]) for k, p in enumerate(lot.params)} if p_block.size else {},
+                         "ess_median": float(np.median(ess[:, j])), "ess_q05": float(np.quantile(ess[:, j], 0.05)),
+                         "flagged": bool(np.median(ess[:, j]) < MIN_ESS), "values": values})
+    members = float(np.sum(1 - p_out))
+    doc = {
+        "units": list(lot.units), "n_units": len(lot.units), "members": members, "tests": list(lot.tests),
+        "params": list(lot.params), "paramset": lot.paramset, "excluded": lot.excluded,
+        "correlation": {p: _q(flat[n]) for p, n in zip([b[0] for b in blocks if len(b[1]) > 1], names["correlation"])},
+        "outlier_fraction": _q(flat["outlier_fraction"]) if "outlier_fraction" in flat else None,
+        "population": population, "per_unit": per_unit,
+        "model": {"coordinates": {p: "log" if lot.boxes[p][0] else "logit of the prior box" for p in lot.params},
+                  "structure": "normal per parameter block: a mean and a scatter per test, one correlation between tests",
+                  "outliers": f"two-component: epsilon ~ Beta{model.hyper.outlier_beta}, an outlier's deviation along "
+                              f"its block's common direction {OUTLIER_SCALE:g} x the scatter",
+                  "scatter_prior": f"half-Cauchy({model.hyper.scatter_scale:g})", "mean_prior": "flat",
+                  "min_ess": MIN_ESS, "draws_per_unit": int(target.x.shape[1])},
+        "boxes": {p: list(b) for p, b in lot.boxes.items()},
+        "design": lot.design,
+        "seed": int(seed), "seed_key": seed_key("batch"), "versions": versions(),
+        "sampler": asdict(config), **result.convergence_dict(),
+        "wall_s": float(result.wall_s),
+    }
+    draws = {"hyper": result.draws, "next_unit": {model.label(p, t): from_population_coordinates(nxt[:, i], lot.boxes[p])
+                                                  for i, (p, t) in enumerate(model.dims)}}
+    return doc, draws
+
+
+def write_batch(out, doc: dict, draws: dict) -> None:
+    """Store a lot's population under ``out`` (summary.json last)."""
+    from pathlib import Path
+
+    out = Path(out)
+    idata = inference_data(posterior={k: np.asarray(v) for k, v in draws["hyper"].items()})
+    with atomic_path(out / "population.nc", ".nc") as tmp:
+        idata.to_netcdf(str(tmp))
+    rows = [{"parameter": r["parameter"], "test": r["test"], "unit": r["unit"],
+             **{f"median_unit_{k}": v for k, v in zip(("q05", "q50", "q95"), r["median_unit"])},
+             **{f"scatter_percent_{k}": v for k, v in zip(("q05", "q50", "q95"), r["scatter_percent"])},
+             **{f"next_unit_{k}": v for k, v in zip(("q05", "q50", "q95"), r["next_unit"])}} for r in doc["population"]]
+    _write_csv(out / "population.csv", pd.DataFrame(rows))
+    rows = []
+    for u in doc["per_unit"]:
+        for label, v in u["values"].items():
+            rows.append({"unit": u["unit"], "dimension": label, "outlier_probability": u["outlier_probability"],
+                         "ess_median": u["ess_median"], "flagged": u["flagged"],
+                         **{f"own_{k}": x for k, x in zip(("q05", "q50", "q95"), v["own"])},
+                         **{f"shrunk_{k}": x for k, x in zip(("q05", "q50", "q95"), v["shrunk"])}})
+    _write_csv(out / "units.csv", pd.DataFrame(rows))
+    write_json(out / SUMMARY, doc, indent=2)
+
+
+def _write_csv(path, frame: pd.DataFrame) -> None:
+    with atomic_path(path, ".csv") as tmp:
+        frame.to_csv(tmp, index=False)
+
+
+def read_batch(runs) -> dict | None:
+    """The stored population of a run store's lot, or None."""
+    return read_summary(batch_dir(runs))
+
+
+def _fmt(q, digits=3) -> str:
+    return f"{q[1]:.{digits}g} [{q[0]:.{digits}g}, {q[2]:.{digits}g}]"
+
+
+def headline(doc: dict) -> str:
+    """The lot in one line: the population at its first test, the scatter, the outliers (or why there is no result)."""
+    n = doc["n_units"]
+    if not doc["converged"]:
+        return f"{n} units: population NOT CONVERGED ({doc['reason']}); no result"
+    parts = []
+    for p in doc["params"]:
+        r = next(r for r in doc["population"] if r["parameter"] == p)
+        unit = f" {r['unit']}" if r["unit"] != "1" else ""
+        parts.append(f"population {p} {_fmt(r['median_unit'])}{unit}, unit scatter {_fmt(r['scatter_percent'], 2)} %"
+                     + (f" (at {r['test']})" if len(doc["tests"]) > 1 else ""))
+    line = f"{n} units: " + "; ".join(parts)
+    outliers = [u for u in doc["per_unit"] if u["outlier_probability"] >= OUTLIER_LINE]
+    for u in sorted(outliers, key=lambda u: -u["outlier_probability"]):
+        p = max(u["outlier_in"], key=u["outlier_in"].get)
+        label = PopulationModel.label(p, doc["tests"][0])
+        line += f"; unit {u['unit']} is an outlier (P {u['outlier_probability']:.2f}): {p} {_fmt(u['values'][label]['own'])}"
+    if not outliers:
+        top = max(doc["per_unit"], key=lambda u: u["outlier_probability"])
+        line += f"; no outlier (highest P {top['outlier_probability']:.2f}: unit {top['unit']})"
+    flagged = [u["unit"] for u in doc["per_unit"] if u["flagged"]]
+    if flagged:
+        line += f"; FLAGGED (its draws cannot represent the population, ESS < {MIN_ESS:g}): {', '.join(flagged)}"
+    if doc["excluded"]:
+        line += "; left out: " + ", ".join(f"{u} ({r})" for u, r in doc["excluded"].items())
+    return line

@@ -1,0 +1,110 @@
+"""``sbcal batch``: a lot of units from a run store, end to end through the CLI, and the lot it refuses."""
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sbcal.cli.app import main
+
+
+@pytest.fixture(scope="module")
+def lot(tmp_path_factory):
+    """Four units of damper1 (virtual lot, one test, unit 2 planted at EJ -15 %), calibrated by sbcal run."""
+    root = tmp_path_factory.mktemp("lot")
+    bench = root / "lot.csv"
+    assert main(["bench", "--damper", "damper1", "--units", "4", "--outlier-unit", "2", "--tests", "0.5-0.5",
+                 "--runs", "6", "--seed", "5", "-o", str(bench)]) == 0
+    runs = root / "runs"
+    assert main(["run", "--bench", str(bench), "--design", "damper1", "--until", "sample", "--runs", str(runs),
+                 "--quiet", "--workers", "1"]) == 0
+    return runs
+
+
+def _batch(runs, out, *extra):
+    return main(["batch", "--runs", str(runs), "-o", str(out), "--quiet", "--seed", "1", *extra])
+
+
+def test_batch_writes_the_population_and_says_it_first(lot, tmp_path, capsys):
+    out = tmp_path / "b"
+    assert _batch(lot, out) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith("4 units: population EJ ") and "unit scatter" in first
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["converged"] and doc["n_units"] == 4 and doc["tests"] == ["0.5-0.5"]
+    assert set(doc["versions"]) >= {"numpy", "emcee"} and doc["seed"] == 1
+    # the units' own estimates against the virtual lot's truth: EJ = 11.3 N m^2 times the unit factor, the
+    # planted unit (u02) at 0.85; the population's median unit between the units' extremes
+    own = {u["unit"]: u["values"]["EJ[0.5-0.5]"]["own"][1] for u in doc["per_unit"]}
+    assert own["damper1-u02"] == min(own.values())
+    pop = doc["population"][0]
+    assert pop["parameter"] == "EJ" and min(own.values()) < pop["median_unit"][1] < max(own.values())
+    lo, med, hi = pop["next_unit"]
+    assert lo < med < hi and hi / lo > 1.02           # the next unit carries the lot's scatter
+    units = pd.read_csv(out / "units.csv")
+    assert set(units["unit"]) == set(own) and units["outlier_probability"].between(0, 1).all()
+    population = pd.read_csv(out / "population.csv")
+    assert list(population["parameter"]) == ["EJ", "beta"]
+    for u in doc["per_unit"]:
+        assert u["ess_median"] > 30 and not u["flagged"]
+
+
+def test_batch_same_seed_same_numbers(lot, tmp_path):
+    docs = []
+    for name in ("a", "b"):
+        assert _batch(lot, tmp_path / name, "--params", "EJ") == 0
+        docs.append(json.loads((tmp_path / name / "summary.json").read_text()))
+    for key in ("population", "per_unit"):
+        assert docs[0][key] == docs[1][key]
+
+
+def _copy(lot, tmp_path):
+    runs = tmp_path / "runs"
+    shutil.copytree(lot, runs)
+    shutil.rmtree(runs / "batch", ignore_errors=True)
+    return runs
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--dampers", "damper1-u01", "damper1-u02"], "a population needs at least 3"),
+    (["--params", "EJ", "mu"], "parameter 'mu' not stored"),
+    (["--tests", "2-2"], "test '2-2' not stored for unit 'damper1-u01'"),
+    (["--dampers", "damper1-u01", "damper1-u02", "nosuch"], "no finished theta1 posteriors of unit 'nosuch'"),
+    (["--seed", "-1"], "--seed -1"),
+])
+def test_batch_refuses_a_bad_lot_in_one_line(lot, tmp_path, capsys, extra, message):
+    runs = _copy(lot, tmp_path)
+    out = tmp_path / "out"
+    assert _batch(runs, out, *extra) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not out.exists()
+
+
+def test_batch_refuses_units_of_different_designs(lot, tmp_path, capsys):
+    runs = _copy(lot, tmp_path)
+    summary = runs / "damper1-u03" / "0.5-0.5" / "theta1" / "summary.json"
+    doc = json.loads(summary.read_text())
+    doc["config"]["damper_values"]["m1"] *= 1.2
+    summary.write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    assert _batch(runs, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert "damper field 'm1'" in err and "different designs" in err and "\n" not in err
+    assert not out.exists()
+
+
+def test_an_unconverged_unit_is_left_out_and_said(lot, tmp_path, capsys):
+    runs = _copy(lot, tmp_path)
+    summary = runs / "damper1-u04" / "0.5-0.5" / "theta1" / "summary.json"
+    doc = json.loads(summary.read_text())
+    doc["converged"] = False
+    summary.write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    assert _batch(runs, out) == 0
+    captured = capsys.readouterr()
+    assert "unit damper1-u04 left out" in captured.err
+    assert captured.out.startswith("3 units:") and "left out: damper1-u04" in captured.out.splitlines()[0]
+    assert np.isclose(json.loads((out / "summary.json").read_text())["n_units"], 3)
