@@ -108,3 +108,24 @@ def test_an_unconverged_unit_is_left_out_and_said(lot, tmp_path, capsys):
     assert "unit damper1-u04 left out" in captured.err
     assert captured.out.startswith("3 units:") and "left out: damper1-u04" in captured.out.splitlines()[0]
     assert np.isclose(json.loads((out / "summary.json").read_text())["n_units"], 3)
+
+
+def test_line_departures_name_the_lines_where_a_unit_is_not_like_the_lot():
+    """Twelve units' run means with the lot's scatter; unit 5 is 10 scatters high in magnitude at 12-15 Hz:
+    exactly that range is named for it; no other line of any unit at a 1e-3 line rate with this seed."""
+    from sbcal.inference.batch import line_departures
+
+    rng = np.random.default_rng(8)
+    freq = np.arange(4.0, 40.5, 1.0)
+    units = [f"u{k}" for k in range(12)]
+    curves = {}
+    for k, u in enumerate(units):
+        logmag = 8.0 + 0.05 * rng.standard_normal(freq.size)
+        phase = 0.5 + 0.02 * rng.standard_normal(freq.size)
+        if k == 5:
+            logmag = logmag + 0.5 * ((freq >= 12) & (freq <= 15))
+        curves[u, "1-1"] = (freq, {"logmag": logmag, "phase": phase})
+    out = line_departures(curves, units, ["1-1"])
+    (span,) = out["u5"]["1-1"]
+    assert (span["from_hz"], span["to_hz"], span["quantity"], span["direction"]) == (12.0, 15.0, "magnitude", "above")
+    assert all(not out[u]["1-1"] for u in units if u != "u5")

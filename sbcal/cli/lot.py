@@ -29,7 +29,7 @@ def add_batch(sub):
 
 
 def cmd_batch(args) -> int:
-    from ..inference.batch import fit_population, headline, read_lot, write_batch
+    from ..inference.batch import departures, fit_population, headline, read_lot, write_batch
     from ..inference.store import batch_dir
 
     if args.seed < 0:
@@ -37,7 +37,8 @@ def cmd_batch(args) -> int:
     lot = read_lot(args.runs, dampers=args.dampers, params=args.params, tests=args.tests, paramset=args.paramset)
     for unit, why in lot.excluded.items():
         print(f"sbcal batch: unit {unit} left out: {why}", file=sys.stderr)
-    doc, draws = fit_population(lot, seed=args.seed, progress=None if args.quiet else "population")
+    doc, draws = fit_population(lot, seed=args.seed, progress=None if args.quiet else "population",
+                                departing=departures(args.runs, lot))
     doc["command"] = getattr(args, "command_line", "")
     out = args.output or batch_dir(args.runs)
     write_batch(out, doc, draws)

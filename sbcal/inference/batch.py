@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.stats import t as student_t
 
 from ..core._io import atomic_path, write_json
 from ..core.errors import InputError
@@ -27,19 +28,25 @@ from .population import (MIN_ESS, OUTLIER_SCALE, HyperPrior, PopulationModel, Po
                          to_population_coordinates, unit_ess)
 from .runs import posterior_draws, read_summary, versions
 from .sampler import SamplerConfig, sample
-from .stats import inference_data
-from .store import SUMMARY, batch_dir, dampers as stored_dampers
+from .stats import inference_data, read_netcdf
+from .store import POSTERIOR, SUMMARY, batch_dir, run_dir
+from .store import dampers as stored_dampers
 
 
-__all__ = ["DEFAULT_PARAMS", "Lot", "read_lot", "fit_population", "write_batch", "read_batch", "headline",
-           "OUTLIER_LINE"]
+__all__ = ["DEFAULT_PARAMS", "Lot", "read_lot", "fit_population", "departures", "line_departures", "write_batch", "read_batch",
+           "headline", "OUTLIER_LINE", "DEPARTURE_RATE"]
 
 DEFAULT_PARAMS = ("EJ", "beta")
 OUTLIER_LINE = 0.5
 """A unit is named an outlier when its posterior probability of being one is at least this."""
 
-MAX_DRAWS = 500
+MAX_DRAWS = 300
 """Joint draws kept per unit (its per-test draws paired at random): the reweighting's sample."""
+
+DEPARTURE_RATE = 0.001
+"""A unit's bench departs from the lot's at a line where its run mean lies outside the other units'
+predictive interval of this two-sided tail probability (Student t with n - 2 degrees of freedom: for a unit
+like the others, one line in a thousand by chance)."""
 
 _DESIGN_EXEMPT = ("name", "source", "description", "tolerance")
 _UNITS = {"EJ": "N m^2"}
@@ -134,6 +141,61 @@ def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset:
                excluded=excluded, paramset=paramset)
 
 
+def departures(runs, lot: Lot, *, rate: float = DEPARTURE_RATE) -> dict:
+    """Where each unit's bench departs from the lot's (:func:`line_departures` of the stored run means)."""
+    curves = {}
+    for u in lot.units:
+        for t in lot.tests:
+            obs = read_netcdf(run_dir(runs, u, t, lot.paramset) / POSTERIOR).observed_data
+            curves[u, t] = (np.asarray(obs["freq"]), {q: np.asarray(obs[q]).mean(axis=0) for q in ("logmag", "phase")})
+    return line_departures(curves, lot.units, lot.tests, rate=rate)
+
+
+def line_departures(curves: dict, units, tests, *, rate: float = DEPARTURE_RATE) -> dict:
+    """Model-free departures: per test and line, a unit's run mean of ``ln |f|`` and of the phase against the
+    other units' run means, ``t = (x - mean) / (sd sqrt(1 + 1/m))`` for ``m`` others, beyond the Student-t
+    quantile of ``rate`` (two-sided) with ``m - 1`` degrees of freedom.
+
+    Parameters
+    ----------
+    curves : dict
+        ``(unit, test) -> (freq_hz (n,), {"logmag": (n,), "phase": (n,)})``: the unit's run means.
+
+    Returns
+    -------
+    dict
+        Unit -> test -> list of ``{"from_hz", "to_hz", "quantity", "direction", "z_max"}`` (adjacent departing
+        lines merged); only lines every unit measured.
+    """
+    units = list(units)
+    out = {u: {} for u in units}
+    m_others = len(units) - 1
+    if m_others < 2:
+        return out
+    limit = float(student_t.ppf(1 - rate / 2, m_others - 1))
+    for t in tests:
+        freq = np.array(sorted(set.intersection(*(set(np.round(curves[u, t][0], 6)) for u in units))))
+        if not freq.size:
+            continue
+        means = {q: np.stack([np.interp(freq, curves[u, t][0], curves[u, t][1][q]) for u in units])
+                 for q in ("logmag", "phase")}
+        for k, u in enumerate(units):
+            spans = []
+            for q, m in means.items():
+                others = np.delete(m, k, axis=0)
+                sd = others.std(axis=0, ddof=1)
+                zs = (m[k] - others.mean(axis=0)) / np.where(sd > 0, sd * np.sqrt(1 + 1 / m_others), np.inf)
+                bad = np.flatnonzero(np.abs(zs) > limit)
+                for run in np.split(bad, np.flatnonzero(np.diff(bad) > 1) + 1) if bad.size else []:
+                    seg = zs[run]
+                    spans.append({"from_hz": float(freq[run[0]]), "to_hz": float(freq[run[-1]]),
+                                  "quantity": "magnitude" if q == "logmag" else "phase",
+                                  "direction": "above" if seg.mean() > 0 else "below",
+                                  "z_max": float(seg[np.argmax(np.abs(seg))])})
+            out[u][t] = sorted(spans, key=lambda s: s["from_hz"])
+    return out
+
+
 def _unit_draws(lot: Lot, model: PopulationModel, rng: np.random.Generator) -> list[UnitDraws]:
     """Each unit's joint draws: its tests' independent posteriors paired at random (a draw of their product)."""
     out = []
@@ -163,7 +225,7 @@ def _q(v) -> list:
 
 
 def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig(), progress: str | None = None,
-                   n_summary: int = 400) -> tuple[dict, dict]:
+                   n_summary: int = 400, departing: dict | None = None) -> tuple[dict, dict]:
     """Fit the population of a lot.
 
     Returns
@@ -217,7 +279,8 @@ def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig
         per_unit.append({"unit": u.name, "outlier_probability": float(p_out[j]),
                          "outlier_in": {p: float(p_block[k, j]) for k, p in enumerate(lot.params)} if p_block.size else {},
                          "ess_median": float(np.median(ess[:, j])), "ess_q05": float(np.quantile(ess[:, j], 0.05)),
-                         "flagged": bool(np.median(ess[:, j]) < MIN_ESS), "values": values})
+                         "flagged": bool(np.median(ess[:, j]) < MIN_ESS), "values": values,
+                         "departs": (departing or {}).get(u.name, {})})
     members = float(np.sum(1 - p_out))
     doc = {
         "units": list(lot.units), "n_units": len(lot.units), "members": members, "tests": list(lot.tests),
@@ -280,6 +343,10 @@ def _fmt(q, digits=3) -> str:
     return f"{q[1]:.{digits}g} [{q[0]:.{digits}g}, {q[2]:.{digits}g}]"
 
 
+def _hz(s) -> str:
+    return f"{s['from_hz']:g} Hz" if s["from_hz"] == s["to_hz"] else f"{s['from_hz']:g}-{s['to_hz']:g} Hz"
+
+
 def headline(doc: dict) -> str:
     """The lot in one line: the population at its first test, the scatter, the outliers (or why there is no result)."""
     n = doc["n_units"]
@@ -297,6 +364,9 @@ def headline(doc: dict) -> str:
         p = max(u["outlier_in"], key=u["outlier_in"].get)
         label = PopulationModel.label(p, doc["tests"][0])
         line += f"; unit {u['unit']} is an outlier (P {u['outlier_probability']:.2f}): {p} {_fmt(u['values'][label]['own'])}"
+        spans = [f"{s['quantity']} {s['direction']} at {_hz(s)} ({t})" for t, ss in u.get("departs", {}).items() for s in ss]
+        if spans:
+            line += ", its bench departs from the lot's: " + ", ".join(spans[:3]) + (" ..." if len(spans) > 3 else "")
     if not outliers:
         top = max(doc["per_unit"], key=lambda u: u["outlier_probability"])
         line += f"; no outlier (highest P {top['outlier_probability']:.2f}: unit {top['unit']})"
