@@ -196,13 +196,14 @@ def line_departures(curves: dict, units, tests, *, rate: float = DEPARTURE_RATE)
     return out
 
 
-def _unit_draws(lot: Lot, model: PopulationModel, rng: np.random.Generator) -> list[UnitDraws]:
-    """Each unit's joint draws: its tests' independent posteriors paired at random (a draw of their product)."""
+def _unit_draws(lot: Lot, dims, rng: np.random.Generator) -> list[UnitDraws]:
+    """Each unit's joint draws over ``dims`` (``(parameter, test)``): its tests' independent posteriors paired
+    at random (a draw of their product)."""
     out = []
     for u in lot.units:
         n = min(min(v.size for v in lot.draws[u].values()), MAX_DRAWS)
         cols, logp = [], np.zeros(n)
-        for p, t in model.dims:
+        for p, t in dims:
             v = lot.draws[u][(p, t)]
             x, lp = to_population_coordinates(v[rng.permutation(v.size)[:n]], lot.boxes[p])
             cols.append(x)
@@ -238,8 +239,7 @@ def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig
     """
     s_pair, s_sample, s_after = job_seed(seed, "batch").spawn(3)
     blocks = tuple((p, lot.tests) for p in lot.params)
-    probe = PopulationModel(blocks=blocks, hyper=HyperPrior(mean_box=((0, 1),) * len(lot.params) * len(lot.tests)))
-    units = _unit_draws(lot, probe, np.random.default_rng(s_pair))
+    units = _unit_draws(lot, [(p, t) for p, tests in blocks for t in tests], np.random.default_rng(s_pair))
     model = PopulationModel(blocks=blocks, hyper=HyperPrior(mean_box=_mean_box(units)))
     target = PopulationTarget(model, units)
     med = np.stack([np.median(u.x, axis=0) for u in units])

@@ -35,7 +35,7 @@ leave-one-out tail probability is not (for twelve ordinary units, half of them w
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import expit, logit
@@ -43,7 +43,7 @@ from scipy.special import expit, logit
 from .priors import Prior
 
 
-__all__ = ["OUTLIER_SCALE", "MIN_ESS", "to_population_coordinates", "UnitDraws", "HyperPrior",
+__all__ = ["OUTLIER_SCALE", "MIN_ESS", "to_population_coordinates", "from_population_coordinates", "UnitDraws", "HyperPrior",
            "PopulationModel", "PopulationTarget", "unit_ess", "outlier_probabilities", "shrunk_draws",
            "predictive_draws"]
 
@@ -147,13 +147,10 @@ class PopulationModel:
     blocks: tuple
     hyper: HyperPrior
     outliers: bool = True
-    _index: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        dims = self.dims
-        if len(self.hyper.mean_box) != len(dims):
-            raise ValueError(f"mean_box: {len(self.hyper.mean_box)} boxes for {len(dims)} dimensions")
-        object.__setattr__(self, "_index", {d: i for i, d in enumerate(dims)})
+        if len(self.hyper.mean_box) != len(self.dims):
+            raise ValueError(f"mean_box: {len(self.hyper.mean_box)} boxes for {len(self.dims)} dimensions")
 
     @property
     def dims(self) -> tuple:
@@ -239,9 +236,9 @@ class _BlockFeatures:
     product of the features ``(y_i y_j, y_i)``, ``y = x - centre``, with each hyper-point's precision.
     """
 
-    def __init__(self, x, centre, smooth: bool = True):
+    def __init__(self, x, centre):
         U, S, T = x.shape
-        h2 = S ** (-2.0 / (T + 4)) if smooth else 0.0
+        h2 = S ** (-2.0 / (T + 4))
         m = x.mean(axis=1, keepdims=True)
         self.kernel = h2 * np.stack([np.atleast_2d(np.cov(x[u], rowvar=False)) for u in range(U)])   # (U, T, T)
         y = m + math.sqrt(1.0 - h2) * (x - m) - centre                                                # (U, S, T)
@@ -269,9 +266,9 @@ class _BlockFeatures:
         return out
 
 
-def _features(model: PopulationModel, x, smooth: bool = True) -> list:
+def _features(model: PopulationModel, x) -> list:
     centre = np.median(x.reshape(-1, x.shape[-1]), axis=0)
-    return [_BlockFeatures(x[:, :, sl], centre[sl], smooth) for _, sl in model.block_slices()]
+    return [_BlockFeatures(x[:, :, sl], centre[sl]) for _, sl in model.block_slices()]
 
 
 def _component_logs(model: PopulationModel, features, log_prior, params):
@@ -313,12 +310,12 @@ class PopulationTarget:
     Beta outlier fraction, and ``sum_u log L_u`` by reweighting.
     """
 
-    def __init__(self, model: PopulationModel, units, *, chunk: int = 64, smooth: bool = True):
+    def __init__(self, model: PopulationModel, units, *, chunk: int = 64):
         self.model = model
         self.prior = model.prior()
         self.names = [u.name for u in units]
         self.x, self.log_prior = _stack_units(units)
-        self.features = _features(model, self.x, smooth)
+        self.features = _features(model, self.x)
         self.chunk = chunk
 
     def log_hyper_prior(self, params: dict, z) -> np.ndarray:
