@@ -129,3 +129,13 @@ def test_line_departures_name_the_lines_where_a_unit_is_not_like_the_lot():
     (span,) = out["u5"]["1-1"]
     assert (span["from_hz"], span["to_hz"], span["quantity"], span["direction"]) == (12.0, 15.0, "magnitude", "above")
     assert all(not out[u]["1-1"] for u in units if u != "u5")
+
+
+def test_a_stored_summary_without_its_config_is_refused_in_one_line(lot, tmp_path, capsys):
+    runs = _copy(lot, tmp_path)
+    (runs / "damper1-u02" / "0.5-0.5" / "theta1" / "summary.json").write_text('{"converged": true, "parameters": {}}')
+    out = tmp_path / "out"
+    assert _batch(runs, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert "damper1-u02/0.5-0.5/theta1/summary.json: key 'config'" in err and "\n" not in err
+    assert not out.exists()

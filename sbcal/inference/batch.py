@@ -103,16 +103,20 @@ def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset:
             if missing:
                 raise InputError(f"{runs}/{unit}/{t.test}/{paramset}: parameter {missing[0]!r} not stored "
                                  f"(stored: {', '.join(t.summary['parameters'])})")
-            cfg = t.summary["config"]
-            values = {k: v for k, v in cfg["damper_values"].items() if k not in _DESIGN_EXEMPT}
+            try:
+                cfg = t.summary["config"]
+                values = {k: v for k, v in cfg["damper_values"].items() if k not in _DESIGN_EXEMPT}
+                priors = {p: cfg["prior"]["parameters"][p] for p in params}
+            except (KeyError, TypeError, AttributeError) as e:
+                raise InputError(f"{runs}/{unit}/{t.test}/{paramset}/{SUMMARY}: key {e}: missing or malformed "
+                                 "(not a run written by sbcal sample)") from None
             if design is None:
                 design, design_of = values, unit
             for key in sorted(set(design) | set(values)):
                 if design.get(key) != values.get(key):
                     raise InputError(f"{runs}/{unit}: damper field {key!r} is {values.get(key)!r}, unit "
                                      f"{design_of!r} has {design.get(key)!r}: units of different designs")
-            for p in params:
-                box = cfg["prior"]["parameters"][p]
+            for p, box in priors.items():
                 b = (box["dist"] == "loguniform", float(box["lower"]), float(box["upper"]))
                 if boxes.setdefault(p, b) != b:
                     raise InputError(f"{runs}/{unit}/{t.test}/{paramset}: prior of {p!r} is {b[1]:g}..{b[2]:g}, "
