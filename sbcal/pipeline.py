@@ -38,7 +38,8 @@ from .model.damper import Damper
 
 __all__ = ["Settings", "inputs_digest", "file_digest", "changed", "executor_for", "clean_damper", "clean",
            "sample_inputs",
-           "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run", "STAGES"]
+           "sample_tests", "diagnose_inputs", "diagnose_dampers", "map_damper", "run", "calibrate_bench",
+           "STAGES"]
 
 STAGES = ("clean", "sample", "diagnose", "map", "report")  # the order of ``run``; ``--until`` names one
 
@@ -344,6 +345,49 @@ def map_damper(store, damper: str, *, settings: Settings, include_oiled: bool = 
 
     return map_from_store(store, damper, settings.paramset, seed=settings.seed, include_oiled=include_oiled,
                           reuse=reuse)
+
+
+def calibrate_bench(path, state: str, *, runs, settings: Settings, damper=None, amplitude=None,
+                    progress: bool = False) -> tuple:
+    """Clean and sample a bench file's constant-amplitude tests of one cable ``state`` (only the one at
+    ``amplitude`` [mm p-p] when given) into its own run store (:func:`sbcal.inference.store.compare_calibration_store`):
+    what ``sbcal compare`` does with a bench file. Stages and seeds as :func:`run`'s; reused while fresh.
+
+    Returns
+    -------
+    (store, damper name)
+    """
+    import numpy as np
+
+    from .data.labels import parse_label
+    from .data.readers import load_bench
+    from .inference.store import compare_calibration_store
+    from .model.damper import bundled_dampers, resolve_damper
+
+    bench = load_bench(path)
+    names = bench.dampers()
+    if damper is not None:
+        d = resolve_damper(damper)
+        if d.name not in names:
+            raise InputError(f"{path}: no rows of damper {d.name!r} (has: {', '.join(names)})")
+    elif len(names) == 1:
+        if names[0] not in bundled_dampers():
+            raise InputError(f"{path}: damper {names[0]!r} is not bundled; give its file with --damper PATH")
+        d = resolve_damper(names[0])
+    else:
+        raise InputError(f"{path}: {len(names)} dampers ({', '.join(names)}); pick one with --damper")
+    tests = []
+    for t in bench.tests(d.name):
+        p = parse_label(t)
+        if p and p.constant and p.state == state and (amplitude is None or np.isclose(p.below_mm_pp, amplitude)):
+            tests.append(t)
+    if not tests:
+        what = f" at {amplitude:g} mm p-p" if amplitude is not None else ""
+        raise InputError(f"{path}: damper {d.name} has no constant-amplitude test{what} in state {state!r}")
+    store = compare_calibration_store(runs, path)
+    data = clean(bench, [d], store=store, settings=settings)
+    sample_tests(data, [(d, t) for t in tests], store=store, settings=settings, progress=progress)
+    return store, d.name
 
 
 def run(bench, dampers, *, store, report_dir, settings: Settings, executor=None, command: str = "",

@@ -139,3 +139,11 @@ def test_a_stored_summary_without_its_config_is_refused_in_one_line(lot, tmp_pat
     err = capsys.readouterr().err.strip()
     assert "damper1-u02/0.5-0.5/theta1/summary.json: key 'config'" in err and "\n" not in err
     assert not out.exists()
+
+
+def test_batch_names_a_missing_run_store(tmp_path, capsys):
+    from sbcal.cli.app import main as cli
+
+    assert cli(["batch", "--runs", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("no such run store (sbcal run --runs DIR writes one)") and "\n" not in err

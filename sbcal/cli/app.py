@@ -13,6 +13,7 @@ from ..core.errors import InputError
 from ..core.version import __version__
 from ..core.workers import one_blas_thread
 from .acquisition import add_import, cmd_import
+from .compare import add_compare, cmd_compare
 from .calibration import (add_bench, add_data, add_map, add_report, add_run, add_sample, add_simulate, cmd_bench,
                           cmd_data, cmd_map, cmd_report, cmd_run, cmd_sample, cmd_simulate)
 from .design import add_design, add_predict, add_span, cmd_design, cmd_predict, cmd_span
@@ -39,6 +40,7 @@ _COMMANDS = {
     "span": (add_span, cmd_span),
     "design": (add_design, cmd_design),
     "batch": (add_batch, cmd_batch),
+    "compare": (add_compare, cmd_compare),
 }
 
 

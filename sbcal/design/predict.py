@@ -61,6 +61,7 @@ import pandas as pd
 
 from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
+from .resonance import PROMINENCE, resonance_draws
 from .cable_run import (EXTRAPOLATION_MARGIN, CableRun, _cable_params, _geometry, _is_calibration_damper, _streams,
                         _subset, _tolerance, _unit_draws, load_cable_run)
 
@@ -76,8 +77,6 @@ QUANTILES = (0.05, 0.5, 0.95)
 RESONANCE_STEP = 0.005
 """Step of the fine grid of the resonance search in ln f (0.5 % in frequency)."""
 
-PROMINENCE = 0.05
-"""Least prominence of a peak of the median resistance curve in ln R (5 %) to count as a resonance."""
 
 _CHUNK = 40_000  # (set, line) pairs per cable-model call: bounds the solver's scratch memory
 _MODES = {"amplitude": "amplitude_mm_pp", "velocity": "velocity_m_s"}
@@ -151,51 +150,16 @@ class Resonance:
 
 
 def _resonances(f_fine, fuu, x0, level: float) -> list:
-    """Resonances (see the module docstring) from ``f_uu`` (S, F_fine) on the geometric grid ``f_fine``
-    at clamp amplitudes ``x0`` (F_fine,) [m]."""
-    from scipy.signal import find_peaks
-
-    omega = 2 * np.pi * f_fine
-    with np.errstate(divide="ignore", invalid="ignore"):
-        resistance = fuu.imag / omega
-        logr = np.where(resistance > 0, np.log(np.where(resistance > 0, resistance, 1.0)), np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(logr, axis=0)
-    ok = np.isfinite(med)
-    if ok.sum() < 3:
-        return []
-    med = np.where(ok, med, np.nanmin(med[ok]))
-    peaks, _ = find_peaks(med, prominence=PROMINENCE)
-    # windows between the minima of the median curve that separate neighbouring peaks
-    bounds = [0] + [int(a + np.argmin(med[a:b + 1])) for a, b in zip(peaks[:-1], peaks[1:])] + [f_fine.size - 1]
-    h = np.log(f_fine[1] / f_fine[0])
-    filled = np.where(np.isfinite(logr), logr, -np.inf)
-    rows = np.arange(filled.shape[0])
+    """Resonances (:func:`sbcal.design.resonance.resonance_draws`) from ``f_uu`` (S, F_fine) on the grid
+    ``f_fine`` at clamp amplitudes ``x0`` (F_fine,) [m], summarised over the draws that have them."""
     out = []
-    for k in range(peaks.size):  # a handful of peaks; vectorised over the draws
-        a, b = bounds[k], bounds[k + 1]
-        sub = filled[:, a:b + 1]
-        # each draw's local maximum nearest the median's peak (a window may also hold a rising edge)
-        top = np.zeros(sub.shape, dtype=bool)
-        top[:, 1:-1] = (sub[:, 1:-1] >= sub[:, :-2]) & (sub[:, 1:-1] > sub[:, 2:]) & np.isfinite(sub[:, 1:-1])
-        dist = np.where(top, np.abs(np.arange(sub.shape[1]) - (peaks[k] - a))[None, :], sub.shape[1])
-        j = np.argmin(dist, axis=1)
-        jj = np.clip(j, 1, sub.shape[1] - 2)
-        y0, y1, y2 = sub[rows, jj - 1], sub[rows, jj], sub[rows, jj + 1]
-        interior = top[rows, j] & np.isfinite(y0) & np.isfinite(y2)
-        if not interior.any():
+    for r in resonance_draws(f_fine, fuu, x0):
+        has = np.isfinite(r["freq_hz"])
+        if not has.any():
             continue
-        with np.errstate(invalid="ignore", divide="ignore"):
-            curv = y0 - 2 * y1 + y2
-            delta = np.clip(np.where(curv < 0, 0.5 * (y0 - y2) / np.where(curv < 0, curv, -1.0), 0.0), -0.5, 0.5)
-        fk = f_fine[a + jj] * np.exp(delta * h)
-        rk = np.exp(y1 - 0.25 * (y0 - y2) * delta)  # the parabola's top
-        xk = np.interp(np.log(fk), np.log(f_fine), x0)
-        pk = 0.5 * rk * (2 * np.pi * fk * xk) ** 2
-        fq, pq = _quantiles(fk[interior]), _quantiles(pk[interior])
+        fq, pq = _quantiles(r["freq_hz"][has]), _quantiles(r["power_w"][has])
         out.append(Resonance(level=float(level), index=len(out) + 1, freq_hz=tuple(map(float, fq)),
-                             power_w=tuple(map(float, pq)), share=float(interior.mean())))
+                             power_w=tuple(map(float, pq)), share=float(has.mean())))
     return out
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -86,6 +87,8 @@ class Lot:
 
 def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset: str = "theta1") -> Lot:
     """The lot in a run store (one-line InputError for a lot that cannot be one)."""
+    if not Path(runs).is_dir():
+        raise InputError(f"{runs}: no such run store (sbcal run --runs DIR writes one)")
     names = list(dampers) if dampers else stored_dampers(runs)
     params = tuple(dict.fromkeys(params))
     stored, design, design_of, boxes, excluded = {}, None, None, {}, {}

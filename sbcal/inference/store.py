@@ -11,6 +11,8 @@
     <runs>/span/<label>/                                       span studies
     <runs>/design/<label>/                                     design searches (sbcal design)
     <runs>/batch/                                              the lot as a population (sbcal batch)
+    <runs>/compare/<before>-vs-<after>/                        a change of characteristic (sbcal compare)
+    <runs>/compare/calibrations/<file>/                        a bench file compare calibrated (a run store)
 
 Inside a run directory the files are its writer's (:mod:`sbcal.inference.runs`,
 :func:`sbcal.inference.cable_fit.store_cable`, ...); ``summary.json`` is written last, so a directory
@@ -24,7 +26,7 @@ from pathlib import Path
 
 __all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "run_dirs", "point_fit_path", "data_path",
            "diagnose_path", "map_path", "cable_dir", "cable_dirs", "cable_state_of", "owner", "prediction_dir", "span_dir",
-           "span_dirs", "design_dir", "design_dirs", "batch_dir"]
+           "span_dirs", "design_dir", "design_dirs", "batch_dir", "compare_dir", "compare_dirs", "compare_calibration_store"]
 
 SUMMARY = "summary.json"
 POSTERIOR = "posterior.nc"
@@ -32,12 +34,13 @@ _CABLE = "cable-"
 _SPAN = "span"
 _DESIGN = "design"
 _BATCH = "batch"
+_COMPARE = "compare"
 
 
 def dampers(runs) -> list[str]:
-    """The dampers a store holds results of (its directories but the span studies', designs' and batch's), sorted."""
+    """The dampers a store holds results of (its directories but the span studies', designs', batch's and comparisons'), sorted."""
     root = Path(runs)
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name not in (_SPAN, _DESIGN, _BATCH)) if root.is_dir() else []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and p.name not in (_SPAN, _DESIGN, _BATCH, _COMPARE)) if root.is_dir() else []
 
 
 def damper_dir(runs, damper: str) -> Path:
@@ -134,3 +137,23 @@ def design_dirs(runs) -> list[Path]:
 def batch_dir(runs) -> Path:
     """``<runs>/batch``: the lot's population (:mod:`sbcal.inference.batch`)."""
     return Path(runs) / _BATCH
+
+
+def compare_dir(runs, label: str) -> Path:
+    """``<runs>/compare/<label>``: one ``sbcal compare`` result."""
+    return Path(runs) / _COMPARE / label
+
+
+def compare_dirs(runs) -> list[Path]:
+    """The finished comparisons of a store, sorted."""
+    return sorted(p.parent for p in (Path(runs) / _COMPARE).glob(f"*/{SUMMARY}"))
+
+
+def compare_calibration_store(runs, bench_file) -> Path:
+    """``<runs>/compare/calibrations/<stem>-<digest>``: the run store of a bench file ``sbcal compare``
+    calibrated (its own store, so two files of one damper and test never share a run directory)."""
+    import hashlib
+
+    p = Path(bench_file).resolve()
+    tag = hashlib.sha256(str(p).encode()).hexdigest()[:8]
+    return Path(runs) / _COMPARE / "calibrations" / f"{p.name.split('.')[0]}-{tag}"

@@ -726,11 +726,14 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     from .lot import lot_section
 
     lot = lot_section(read_batch(runs), figs)
+    from .compare import compare_section
+
+    comparisons = compare_section(runs, figs)
     spans = _span_studies(runs, figs)
     designs = _design_searches(runs, figs, out / "files")
     env = Environment(loader=PackageLoader("sbcal.report", "templates"), autoescape=select_autoescape(["html"]))
     page = env.get_template("report.html").render(
-        dampers=dampers, lot=lot, spans=spans, designs=designs, map_fig=map_fig, map_rows=map_rows, map_note=map_note,
+        dampers=dampers, lot=lot, comparisons=comparisons, spans=spans, designs=designs, map_fig=map_fig, map_rows=map_rows, map_note=map_note,
         provenance=provenance,
         created=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), command=command,
         runs_dir=str(runs), paramset=paramset, iv=lambda v: "—" if v is None else f"{v[0]:.3g} [{v[1]:.3g}, {v[2]:.3g}]",
