@@ -33,11 +33,8 @@ def add_compare(sub):
 
 
 def cmd_compare(args) -> int:
-    import numpy as np
-
-    from ..design.acceptance import default_acceptance, read_acceptance
-    from ..design.compare import compare_characteristics
-    from ..design.compare_runs import RunRef, characteristics, geometry_differs, parse_run, resolve
+    from ..design.acceptance import read_acceptance
+    from ..design.compare_runs import RunRef, compare_runs
     from ..design.compare_store import store_comparisons
     from ..inference.runs import versions
     from ..inference.store import compare_dir
@@ -47,30 +44,23 @@ def cmd_compare(args) -> int:
         raise InputError(f"--seed {args.seed}: expected an integer >= 0")
     if args.draws < 50:
         raise InputError(f"--draws {args.draws}: expected an integer >= 50")
-    acc = read_acceptance(args.spec) if args.spec else default_acceptance()
-    for text in (args.before, args.after):
-        parse_run(text)  # both exist before any work
+    acc = read_acceptance(args.spec) if args.spec else None
     settings = Settings(paramset=args.paramset, seed=args.seed)
-    amplitude = acc.level if acc.mode == "amplitude" else None
+    amplitude = acc.level if acc is not None and acc.mode == "amplitude" else None
 
     def calibrate(path, state, text):
         store, name = calibrate_bench(path, state, runs=args.runs, settings=settings, damper=args.damper,
                                       amplitude=amplitude, progress=not args.quiet)
         return RunRef(str(store), name, state, text)
 
-    refs = [resolve(t, runs=args.runs, calibrate=calibrate) for t in (args.before, args.after)]
-    rng = np.random.default_rng(np.random.SeedSequence([args.seed, 38]))
-    pairs = characteristics(*refs, acc, paramset=args.paramset, n_draws=args.draws, rng=rng)
-    differs = geometry_differs(*pairs[0])
-    if differs:
-        msg = f"{refs[0].label} and {refs[1].label} differ in damper geometry ({', '.join(differs)})"
-        if acc.same_design:
-            raise InputError(f"{acc.source}: same_design = true, but {msg}")
-        print(f"sbcal compare: warning: {msg}: the change includes the design's", file=sys.stderr)
-    comparisons = [compare_characteristics(b, a, acc, rng=rng) for b, a in pairs]
-    out = args.output or compare_dir(args.runs, f"{_tag(refs[0])}-vs-{_tag(refs[1])}")
+    comparisons, warnings = compare_runs(args.before, args.after, acc, paramset=args.paramset, n_draws=args.draws,
+                                         seed=args.seed, calibrate=calibrate)
+    for w in warnings:
+        print(f"sbcal compare: warning: {w}", file=sys.stderr)
+    before, after = comparisons[0].before, comparisons[0].after
+    out = args.output or compare_dir(args.runs, f"{_tag(args.before, before)}-vs-{_tag(args.after, after)}")
     meta = {"before": args.before, "after": args.after, "spec": args.spec, "seed": args.seed, "draws": args.draws,
-            "command": getattr(args, "command_line", ""), "versions": versions()}
+            "warnings": warnings, "command": getattr(args, "command_line", ""), "versions": versions()}
     store_comparisons(comparisons, out, meta=meta)
     for c in comparisons:
         print(c.headline())
@@ -81,13 +71,13 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _tag(ref) -> str:
+def _tag(text: str, side) -> str:
     """A RUN's part of the output's name: the damper (a stored run) or the file's stem (a bench file), and the state."""
     from pathlib import Path
 
-    path = ref.text.partition("@")[0]
-    name = Path(path).name.split(".")[0] if Path(path).is_file() else ref.damper
-    return name if ref.state == "dry" else f"{name}-{ref.state}"
+    path = text.partition("@")[0]
+    name = Path(path).name.split(".")[0] if Path(path).is_file() else side.damper
+    return name if side.state == "dry" else f"{name}-{side.state}"
 
 
 def _table(c) -> str:

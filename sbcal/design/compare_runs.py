@@ -27,7 +27,7 @@ from .acceptance import Acceptance
 from .characteristic import constant_tests, from_cable, from_test
 
 
-__all__ = ["RunRef", "parse_run", "resolve", "characteristics", "geometry_differs"]
+__all__ = ["RunRef", "parse_run", "resolve", "characteristics", "geometry_differs", "compare_runs"]
 
 _BENCH_SUFFIXES = (".csv", ".gz", ".xlsx", ".parquet", ".tsv", ".txt")
 
@@ -63,7 +63,7 @@ def parse_run(text: str) -> tuple[str, str, bool]:
     return path, state, is_file
 
 
-def resolve(text: str, *, runs, calibrate=None) -> RunRef:
+def resolve(text: str, *, calibrate=None) -> RunRef:
     """A RUN argument as a :class:`RunRef`; a bench file is handed to ``calibrate(path, state, text)``
     (the pipeline's :func:`sbcal.pipeline.calibrate_bench`), which returns the run it made."""
     path, state, is_file = parse_run(text)
@@ -145,3 +145,52 @@ def geometry_differs(before, after) -> list:
         if not np.isclose(float(a), float(b), rtol=1e-9, atol=0.0):
             out.append(k)
     return out
+
+
+def compare_runs(before: str, after: str, acceptance: Acceptance | None = None, *, paramset: str = "theta1",
+                 n_draws: int = 1000, seed: int = 0, calibrate=None) -> tuple[list, list]:
+    """Did the damper change? Every excitation's :class:`sbcal.design.compare.Comparison` of two RUNs.
+
+    Parameters
+    ----------
+    before, after : str
+        RUN arguments (module docstring): ``<runs>/<damper>[@state]``, or a bench file when ``calibrate``
+        is given (:func:`resolve`).
+    acceptance : Acceptance, optional
+        :func:`sbcal.design.acceptance.read_acceptance`'s; None: the change at every amplitude both tested,
+        no decision.
+    paramset : str
+    n_draws : int
+        Posterior draws a side.
+    seed : int
+        Fixes the draws' subsets, the discrepancy draws and the pairing.
+    calibrate : callable, optional
+        ``calibrate(path, state, text) -> RunRef`` for a bench-file RUN.
+
+    Returns
+    -------
+    comparisons : list of Comparison
+    warnings : list of str
+
+    Raises
+    ------
+    InputError
+        A missing run; no excitation both runs cover; different geometry under ``same_design``; ...
+    """
+    from .acceptance import default_acceptance
+    from .compare import compare_characteristics
+
+    acc = acceptance or default_acceptance()
+    for text in (before, after):
+        parse_run(text)  # both exist before any work
+    refs = [resolve(t, calibrate=calibrate) for t in (before, after)]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 38]))
+    pairs = characteristics(*refs, acc, paramset=paramset, n_draws=n_draws, rng=rng)
+    warnings = []
+    differs = geometry_differs(*pairs[0])
+    if differs:
+        msg = f"{refs[0].label} and {refs[1].label} differ in damper geometry ({', '.join(differs)})"
+        if acc.same_design:
+            raise InputError(f"{acc.source}: same_design = true, but {msg}")
+        warnings.append(f"{msg}: the change includes the design's")
+    return [compare_characteristics(b, a, acc, rng=rng) for b, a in pairs], warnings
