@@ -256,7 +256,7 @@ def test_the_readme_channel_map_reads(tmp_path):
     from pathlib import Path
 
     text = (Path(__file__).parents[1] / "README.md").read_text()
-    block = text[text.index("```toml", text.index("## From the lab's raw files")) + 7:]
+    block = text[text.index("```toml", text.index("(`sbcal import`)")) + 7:]
     (tmp_path / "channels.toml").write_text(block[:block.index("```")])
     cmap = load_channel_map(tmp_path / "channels.toml")
     assert cmap.force.channels == ("Force A", "Force B") and cmap.base.quantity == "acceleration"
