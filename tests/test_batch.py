@@ -72,7 +72,7 @@ def _copy(lot, tmp_path):
     (["--params", "EJ", "mu"], "parameter 'mu' not stored"),
     (["--tests", "2-2"], "test '2-2' not stored for unit 'damper1-u01'"),
     (["--dampers", "damper1-u01", "damper1-u02", "nosuch"], "no finished theta1 posteriors of unit 'nosuch'"),
-    (["--seed", "-1"], "--seed -1"),
+    (["--seed", "-1"], "argument --seed: expected an integer >= 0, got -1"),
 ])
 def test_batch_refuses_a_bad_lot_in_one_line(lot, tmp_path, capsys, extra, message):
     runs = _copy(lot, tmp_path)

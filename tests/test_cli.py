@@ -76,3 +76,27 @@ def test_unwritable_output_is_one_line(tmp_path, capsys):
     rc = main(["report", "--runs", str(tmp_path), "-o", str(blocker / "rep")])
     err = capsys.readouterr().err
     assert rc == 2 and str(blocker) in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["sample", "--test", "0.5-0.5", "--seed", "-1"], "sample: argument --seed: expected an integer >= 0, got -1"),
+    (["bench", "--damper", "damper1", "--seed", "x", "-o", "b.csv"], "bench: argument --seed: expected an integer >= 0"),
+    (["simulate", "--damper", "damper1", "--set", "EJ=-9", "-o", "s.csv"], "--set 'EJ=-9': EJ must be > 0"),
+    (["simulate", "--damper", "damper1", "--set", "beta=-0.1", "-o", "s.csv"], "--set 'beta=-0.1': beta must be >= 0"),
+])
+def test_bad_values_are_one_line_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not any(tmp_path.iterdir())  # nothing written, not even the run store's data.json
+
+
+def test_help_has_no_doubled_percent_and_errors_name_the_program_once(capsys):
+    from sbcal.cli.app import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    for name, parser in sub.choices.items():
+        assert "%%" not in parser.format_help(), name
+    assert main(["run", "--bogus"]) == 2
+    assert capsys.readouterr().err.strip() == "sbcal: error: unrecognized arguments: --bogus"

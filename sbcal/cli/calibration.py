@@ -7,7 +7,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from .options import (bench_for, bench_options, check_dampers, cleaned_for, parse_frequencies, parse_set,
-                      print_summary, scale_options, settings_from, workers_option)
+                      print_summary, scale_options, seed_value, settings_from, workers_option)
 
 
 __all__ = [
@@ -63,7 +63,7 @@ def add_sample(sub):
                    help="bayes: the posterior (default); point: the thesis's point fit only, its cost minimised by "
                         "differential evolution (the baseline; 'ga' is the same, named after the thesis's "
                         "genetic algorithm)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--out", default="runs", metavar="DIR", help="run store (default runs/)")
     scale_options(p, "tests in parallel processes")
     return p
@@ -167,7 +167,7 @@ def add_map(sub):
     bench_options(p, "bench file for --joint")
     p.add_argument("--json", metavar="OUT", help="write the fit as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="figure: EJ and beta versus amplitude, every damper in the run store")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED")
     return p
 
 
@@ -281,7 +281,7 @@ def add_run(sub):
     bench_options(p)
     p.add_argument("--params", default="theta1", metavar="SET")
     p.add_argument("--priors", metavar="PATH", help="prior file (default: the bundled priors/default.toml)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED")
     scale_options(p)
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
@@ -332,7 +332,7 @@ def add_bench(sub):
                    help="test labels A-B (default: the thesis's plan 0.1-0.1 0.2-0.2 0.3-0.3 0.4-0.4 0.5-0.5 "
                         "1-1 2-2 2-1)")
     p.add_argument("--runs", type=int, default=24, metavar="N", help="runs per test (default 24)")
-    p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--ideal", action="store_true", help="no run-to-run scatter, noise or outliers")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
                    help="the bench CSV; with --raw the truth lines of the raw files (no line noise or outliers)")
@@ -427,8 +427,6 @@ def cmd_bench(args) -> int:
         effects[name] = value
     if args.runs < 1:
         raise InputError(f"--runs {args.runs}: must be >= 1")
-    if args.seed < 0:
-        raise InputError(f"--seed {args.seed}: must be >= 0")
     config = BenchConfig(params=params, effects=effects, runs=args.runs)
     tests = args.tests or DEFAULT_TESTS
     if args.raw:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..core.errors import InputError
+from .options import seed_value
 
 
 __all__ = ["add_compare", "cmd_compare"]
@@ -27,7 +28,7 @@ def add_compare(sub):
     p.add_argument("--paramset", default="theta1", metavar="SET", help="parameter set of the tests' posteriors (default theta1)")
     p.add_argument("--draws", type=int, default=1000, metavar="N", help="posterior draws per side (default 1000)")
     p.add_argument("-o", "--output", metavar="DIR", help="where to write (default <runs>/compare/<before>-vs-<after>)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -40,8 +41,6 @@ def cmd_compare(args) -> int:
     from ..inference.store import compare_dir
     from ..pipeline import Settings, calibrate_bench
 
-    if args.seed < 0:
-        raise InputError(f"--seed {args.seed}: expected an integer >= 0")
     if args.draws < 50:
         raise InputError(f"--draws {args.draws}: expected an integer >= 50")
     acc = read_acceptance(args.spec) if args.spec else None

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 
 from ..core.errors import InputError
-from .options import parse_frequencies, scale_options
+from .options import parse_frequencies, scale_options, seed_value
 
 
 __all__ = ["add_predict", "cmd_predict", "add_span", "cmd_span", "add_design", "cmd_design"]
@@ -41,7 +41,7 @@ def add_predict(sub):
                         "scale (docs/predict.md)")
     p.add_argument("--bench-effects", action="store_true",
                    help="apply the calibration bench's fitted measurement-chain effects (delay, fixture mass, rocking)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("-o", "--output", metavar="OUT.csv", help="also write the CSV here")
     p.add_argument("--plot", metavar="PNG", help="also write the figure here")
     return p
@@ -114,7 +114,7 @@ def add_span(sub):
                        description="The energy balance method (docs/span.md): for each Strouhal frequency of the wind "
                                    "band the antinode amplitude Y_max, the bending amplitude Y_b at 89 mm from the clamp "
                                    "and the Poffenberger-Swart stress against the fatigue limit, with the damper's "
-                                   "amplitude-dependent impedance from a stored cable fit (median and 90 %% band over its "
+                                   "amplitude-dependent impedance from a stored cable fit (median and 90 % band over its "
                                    "posterior) and without a damper. Stored as <runs>/span/<conductor>-<damper>-<state>/ "
                                    "(span.csv, span.png, summary.json; placement.csv with --optimise).")
     p.add_argument("--conductor", required=True, metavar="NAME|PATH",
@@ -131,7 +131,7 @@ def add_span(sub):
     p.add_argument("--wind", default="1:7", metavar="MIN:MAX", help="wind band [m/s] (default 1:7; at most 0:15)")
     p.add_argument("--lines", type=int, default=60, metavar="N", help="frequencies in the band (default 60)")
     p.add_argument("--draws", type=int, default=200, metavar="N", help="posterior draws used (default 200)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the draws (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed of the draws (default 0)")
     p.add_argument("--optimise", "--optimize", action="store_true",
                    help="also find the position (one damper per equipped end) that maximises the 10 %% quantile of "
                         "the worst-case margin over the band; plot the margin against position")
@@ -242,7 +242,7 @@ def cmd_span(args) -> int:
 def add_design(sub):
     p = sub.add_parser("design", help="a damper designed for a line: the design that maximises the span's margin or life",
                        description="Search a design space of damper-file fields (masses, arm lengths, offsets) for the "
-                                   "damper, built with a calibrated cable, that maximises the 10 %% quantile over the "
+                                   "damper, built with a calibrated cable, that maximises the 10 % quantile over the "
                                    "cable posterior of the worst-case fatigue margin of a conductor span (or of its "
                                    "service life), with the damper(s) at their best position (docs/design.md). "
                                    "Stored as <runs>/design/<label>/ (best.toml, designs.csv, design.png, summary.json).")
@@ -271,7 +271,7 @@ def add_design(sub):
                         "with --draws and --lines")
     p.add_argument("--no-model-error", action="store_true",
                    help="the cable posterior and tolerances alone, without the calibration's model discrepancy")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the optimiser and the draws (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed of the optimiser and the draws (default 0)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="output directory (default <runs>/design/<label>/, <runs> the store holding the cable run)")
     scale_options(p, "designs of a generation evaluated in parallel local processes")

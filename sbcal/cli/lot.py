@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..core.errors import InputError
+from .options import seed_value
 
 
 __all__ = ["add_batch", "cmd_batch"]
@@ -23,7 +24,7 @@ def add_batch(sub):
     p.add_argument("--tests", nargs="+", metavar="LABEL", help="tests (default: every test all units have)")
     p.add_argument("--paramset", default="theta1", metavar="SET", help="parameter set of the stored runs (default theta1)")
     p.add_argument("-o", "--output", metavar="DIR", help="where to write (default <runs>/batch)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -32,8 +33,6 @@ def cmd_batch(args) -> int:
     from ..inference.batch import departures, fit_population, headline, read_lot, write_batch
     from ..inference.store import batch_dir
 
-    if args.seed < 0:
-        raise InputError(f"--seed {args.seed}: expected an integer >= 0")
     lot = read_lot(args.runs, dampers=args.dampers, params=args.params, tests=args.tests, paramset=args.paramset)
     for unit, why in lot.excluded.items():
         print(f"sbcal batch: unit {unit} left out: {why}", file=sys.stderr)

@@ -12,7 +12,7 @@ from ..core.workers import default_workers
 
 
 __all__ = [
-    "Parser", "parse_set", "parse_frequencies", "bench_options", "damper_options", "workers_option", "scale_options",
+    "Parser", "seed_value", "parse_set", "parse_frequencies", "bench_options", "damper_options", "workers_option", "scale_options",
     "bench_for", "check_dampers", "cleaned_for", "settings_from", "print_summary",
 ]
 
@@ -20,7 +20,20 @@ class Parser(argparse.ArgumentParser):
     """argparse with a one-line error (no usage dump) and exit status 2."""
 
     def error(self, message):
-        raise InputError(f"{self.prog}: {message}")
+        # the CLI prints "sbcal: error: ..." itself: name the subcommand only ("run: argument --x: ...")
+        sub = self.prog.removeprefix("sbcal").strip()
+        raise InputError(f"{sub}: {message}" if sub else message)
+
+
+def seed_value(text: str) -> int:
+    """``--seed``: an integer >= 0 (numpy's SeedSequence takes no negative entropy)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
 
 
 def parse_set(items) -> dict:
@@ -37,7 +50,16 @@ def parse_set(items) -> dict:
         if name not in PARAMETER_NAMES:
             raise InputError(f"--set {item!r}: unknown parameter {name!r}; known: {', '.join(PARAMETER_NAMES)}")
         out[name] = finite_number(value, f"--set {item!r}")
+        if name in _POSITIVE and out[name] <= 0:
+            raise InputError(f"--set {item!r}: {name} must be > 0")
+        if name in _NON_NEGATIVE and out[name] < 0:
+            raise InputError(f"--set {item!r}: {name} must be >= 0")
     return out
+
+
+# model parameters that are sizes (rigidities, masses, inertias, lengths) or loss factors
+_POSITIVE = ("EJ", "m1", "m2", "mc", "J1", "J2", "Jc", "mu", "L1", "L2")
+_NON_NEGATIVE = ("beta", "beta1", "beta2")
 
 
 def parse_frequencies(text: str) -> np.ndarray:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..inference.store import cable_dir, diagnose_path
-from .options import bench_for, cleaned_for, damper_options, scale_options, settings_from, workers_option
+from .options import bench_for, cleaned_for, damper_options, scale_options, seed_value, settings_from, workers_option
 
 
 __all__ = ["add_diagnose", "cmd_diagnose", "add_cable", "cmd_cable"]
@@ -19,7 +19,7 @@ def add_diagnose(sub):
     damper_options(p)
     p.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels (default: all of the damper's)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the base parameters (default: the bundled one)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", metavar="OUT", help="write the diagnosis as JSON")
     p.add_argument("--curves", metavar="OUT.csv",
                    help="write the fitted curves (posterior median per line) of the per-test model and of the verdict's "
@@ -118,7 +118,7 @@ def add_cable(sub):
                         "their own (docs/cable.md); or best (every family that can be compared, then the best one's "
                         "zoned law where the uniform law leaves a misfit; the best converged by PSIS-LOO; default)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     workers_option(p, "processes per fit")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
