@@ -150,7 +150,7 @@ def test_unlimited_lives_are_the_best_objective_not_a_nan():
     """A design under which no draw takes damage has an infinite life: its quantiles stay inf (no
     inf - inf interpolation), the optimiser ranks it first, and the summary stores null."""
     from sbcal.design.search import _minimised, _quantiles
-    from sbcal.design.search_store import _clean
+    from sbcal.core._io import json_ready
 
     q = _quantiles(np.r_[np.full(5, 30.0), np.full(5, np.inf)])
     assert q["q10"] == 30.0 and q["q95"] == np.inf and np.isfinite(q["q05"])
@@ -158,7 +158,7 @@ def test_unlimited_lives_are_the_best_objective_not_a_nan():
     assert all(v == np.inf for v in all_inf.values())
     assert _minimised({"objective": np.inf, "extrapolated": False}) < _minimised({"objective": 1e3, "extrapolated": False})
     assert _minimised({"objective": np.nan, "extrapolated": False}) > _minimised({"objective": 0.0, "extrapolated": False})
-    assert _clean({"years": all_inf})["years"]["q10"] is None
+    assert json_ready({"years": all_inf})["years"]["q10"] is None
 
 
 @pytest.mark.slow

@@ -16,7 +16,7 @@ from .errors import InputError
 
 
 __all__ = ["read_toml", "name_and_description", "finite_number", "atomic_path", "write_json", "read_summary",
-           "bundled_names", "resolve_bundled"]
+           "bundled_names", "resolve_bundled", "json_ready"]
 
 
 def read_toml(path) -> dict:
@@ -108,6 +108,17 @@ def write_json(path, doc, **dumps) -> None:
 
     with atomic_path(path, ".json") as tmp:
         tmp.write_text(json.dumps(doc, **dumps) + "\n", encoding="utf-8")
+
+
+def json_ready(x):
+    """NaN and inf as None, recursively through dicts, lists and tuples (JSON without NaN)."""
+    if isinstance(x, dict):
+        return {k: json_ready(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [json_ready(v) for v in x]
+    if isinstance(x, float) or getattr(getattr(x, "dtype", None), "kind", "") == "f" and getattr(x, "ndim", 1) == 0:
+        return float(x) if math.isfinite(x) else None  # a Python or numpy float scalar
+    return x
 
 
 def read_summary(directory, keys, what: str, writer: str) -> dict:

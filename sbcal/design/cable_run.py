@@ -201,10 +201,15 @@ def _streams(seed):
 
 def _subset(cable: CableRun, n_draws: int, rng) -> np.ndarray:
     """Indices of the posterior draws used (all of them, in order, when n_draws >= the stored number)."""
-    n = cable.n_draws
-    if n_draws >= n:
-        return np.arange(n)
-    return np.sort(rng.choice(n, size=n_draws, replace=False))
+    return subset_indices(cable.n_draws, n_draws, rng)
+
+
+def subset_indices(n_total: int, n_draws: int, rng) -> np.ndarray:
+    """``n_draws`` of ``n_total`` stored draws, sorted, without replacement (all, in order, when there are
+    no more than that): the one subset rule of every reader of stored posteriors."""
+    if n_draws >= n_total:
+        return np.arange(n_total)
+    return np.sort(rng.choice(n_total, size=n_draws, replace=False))
 
 
 def _cable_params(cable: CableRun, idx, bench_effects: bool, own_offsets: bool) -> dict:

@@ -33,6 +33,8 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.labels import DRY, parse_label
 from ..model.damper import Damper
+from .cable_run import subset_indices
+from .predict import _x0
 from .resonance import resonance_draws
 
 
@@ -100,11 +102,6 @@ def power(freq_hz, fuu, x0) -> np.ndarray:
     return 0.5 * omega * np.imag(fuu) * np.asarray(x0, float) ** 2
 
 
-def _x0(mode: str, level: float, freq_hz) -> np.ndarray:
-    f = np.asarray(freq_hz, float)
-    return np.full(f.shape, level / 2 * 1e-3) if mode == "amplitude" else level / (2 * np.pi * f)
-
-
 def _in_range(freq_hz, freq_range):
     f = np.asarray(freq_hz, float)
     if freq_range is None:
@@ -123,12 +120,6 @@ def constant_tests(runs, damper: str, state: str, paramset: str) -> dict:
         if p and p.constant and p.state == state:
             out[p.below_mm_pp] = d
     return out
-
-
-def _pick(n_total: int, n_draws: int, rng) -> np.ndarray:
-    if n_draws >= n_total:
-        return np.arange(n_total)
-    return np.sort(rng.choice(n_total, size=n_draws, replace=False))
 
 
 def _mean_error(y, n, rng, n_draws: int) -> np.ndarray:
@@ -180,7 +171,7 @@ def from_test(directory, *, freq_range=None, n_draws: int = 1000, rng: np.random
                          "at least 3 are needed")
     post, pp = idata.posterior, idata.posterior_predictive
     n_total = post.sizes["chain"] * post.sizes["draw"]
-    idx = _pick(n_total, int(n_draws), rng)
+    idx = subset_indices(n_total, int(n_draws), rng)
     mu = np.stack([np.asarray(pp[v], float).reshape(n_total, -1)[idx] for v in ("model_logmag", "model_phase")])
     s = np.stack([np.asarray(post[v], float).ravel()[idx] for v in ("sigma_mag", "sigma_phase")])[:, :, None]
     obs = idata.observed_data

@@ -32,8 +32,9 @@ import numpy as np
 import pandas as pd
 
 from ..core.errors import InputError
-from .acceptance import TOLERANCES, Acceptance
+from .acceptance import Acceptance
 from .characteristic import Characteristic, power
+from .predict import _quantiles
 
 
 __all__ = ["DECIDE", "CLEAR_PEAK", "Criterion", "Comparison", "compare_characteristics", "lab_gap"]
@@ -123,7 +124,7 @@ class Comparison:
     extrapolated: np.ndarray
     notes: tuple = field(default=())
 
-    def headline(self, what: str = "after") -> str:
+    def headline(self) -> str:
         """The first line: ``after: fail - resonance 2 frequency moved -9.4 % [-10.8, -8.1] against +-5 %, P(beyond) 1.00``."""
         who = f"{self.after.label} against {self.before.label}"
         if not self.criteria:
@@ -312,9 +313,9 @@ def compare_characteristics(before: Characteristic, after: Characteristic, accep
         p_all, verdict = None, "no spec"
     curves = {}
     for name, b, a in (("impedance", imp_b, imp_a), ("phase", ph_b, ph_a), ("power", pw_b, pw_a)):
-        curves[f"before_{name}"] = _qlines(b)
-        curves[f"after_{name}"] = _qlines(a)
-    curves["impedance_change"], curves["phase_change"], curves["power_change"] = _qlines(d_imp), _qlines(d_ph), _qlines(d_pw)
+        curves[f"before_{name}"] = _quantiles(b)
+        curves[f"after_{name}"] = _quantiles(a)
+    curves["impedance_change"], curves["phase_change"], curves["power_change"] = _quantiles(d_imp), _quantiles(d_ph), _quantiles(d_pw)
     notes = [f"before: {before.source} ({before.discrepancy}); after: {after.source} ({after.discrepancy})",
              "the two calibrations are treated as independent: draws paired at random"]
     if before.damper == after.damper:
@@ -325,14 +326,6 @@ def compare_characteristics(before: Characteristic, after: Characteristic, accep
         notes.append(f"{int(ext.sum())} line(s) extrapolate a cable law beyond its calibrated curvatures")
     return Comparison(before=before, after=after, acceptance=acceptance, criteria=tuple(crit), verdict=verdict,
                       p_all_within=p_all, freq_hz=f, curves=curves, extrapolated=ext, notes=tuple(notes))
-
-
-def _qlines(x) -> np.ndarray:
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanquantile(np.asarray(x, float), (0.05, 0.5, 0.95), axis=0)
 
 
 def lab_gap(before_means, after_means, freq_hz, x0, acceptance: Acceptance) -> dict:

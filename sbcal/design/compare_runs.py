@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from ..data.labels import DRY, parse_label
+from ..data.labels import DRY
 from .acceptance import Acceptance
 from .characteristic import constant_tests, from_cable, from_test
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..core._io import atomic_path, read_summary, write_json
+from ..core._io import atomic_path, json_ready, read_summary, write_json
 from ..core.plotting import pyplot, save_png
 from .compare import Comparison
 
@@ -22,19 +22,8 @@ from .compare import Comparison
 __all__ = ["store_comparisons", "read_comparison", "compare_figure"]
 
 
-def _clean(x):
-    """JSON-ready: NaN as None."""
-    if isinstance(x, float):
-        return None if not np.isfinite(x) else x
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    return x
-
-
 def _one(c: Comparison) -> dict:
-    return _clean({
+    return json_ready({
         "mode": c.before.mode, "level": c.before.level, "headline": c.headline(), "verdict": c.verdict,
         "p_all_within": c.p_all_within, "criteria": [dataclasses.asdict(k) for k in c.criteria],
         "before": {"damper": c.before.damper, "state": c.before.state, "source": c.before.source, "run": c.before.run,

@@ -3,12 +3,12 @@
 
 from __future__ import annotations
 
-import math
 import re
 from pathlib import Path
 
 import numpy as np
 
+from ..core._io import json_ready
 from ..core.plotting import pyplot, save_png
 from ..inference.store import design_dir as store_design_dir
 from ..inference.store import design_dirs, owner
@@ -65,17 +65,6 @@ def plot_design(result: DesignResult, path) -> None:
     save_png(fig, path, dpi=110)
 
 
-def _clean(x):
-    """NaN and inf as None, recursively (JSON without NaN)."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    return x
-
-
 def store_design(result: DesignResult, directory, *, meta: dict | None = None) -> Path:
     """Write ``best.toml``, ``designs.csv``, ``design.png`` and, last, ``summary.json`` into
     ``directory``, each atomically. Returns the directory."""
@@ -90,7 +79,7 @@ def store_design(result: DesignResult, directory, *, meta: dict | None = None) -
     with atomic_path(d / "designs.csv", ".csv") as tmp:
         result.to_frame().to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
     plot_design(result, d / "design.png")
-    write_json(d / "summary.json", _clean(dict(result.summary(), **(meta or {}))), indent=1, allow_nan=False)
+    write_json(d / "summary.json", json_ready(dict(result.summary(), **(meta or {}))), indent=1, allow_nan=False)
     return d
 
 
