@@ -28,7 +28,7 @@ def run(units: int, tests, seed: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         bench = root / "lot.csv"
-        assert sbcal(["bench", "--damper", "damper1", "--units", str(units), "--tests", *tests, "--runs", "10",
+        assert sbcal(["bench", "--damper", "damper1", "--units", str(units), "--tests", *tests, "--runs-per-test", "10",
                       "--effect", SLIP, "--set", "EJ=4.4", "--set", "beta=0.11", "--seed", str(seed),
                       "-o", str(bench)]) == 0
         runs = root / "runs"

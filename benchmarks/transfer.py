@@ -158,7 +158,7 @@ def main():
         sh(sys.executable, "-m", "sbcal.cli", "cable", "--damper", "damper1", "--law", "iwan5", "--runs", str(runs),
            "--quiet")
     if not list((runs / "damper1").glob("*/theta1/summary.json")):
-        sh(sys.executable, "-m", "sbcal.cli", "sample", "--all", "--damper", "damper1", "--out", str(runs), "--quiet")
+        sh(sys.executable, "-m", "sbcal.cli", "sample", "--all", "--damper", "damper1", "--runs", str(runs), "--quiet")
 
     pred = predict(cable, NEW, amplitude_mm_pp=list(AMPS), n_draws=args.draws, seed=args.seed)
     store_prediction(pred, meta={"made_by": "benchmarks/transfer.py"})

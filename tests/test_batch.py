@@ -16,7 +16,7 @@ def lot(tmp_path_factory):
     root = tmp_path_factory.mktemp("lot")
     bench = root / "lot.csv"
     assert main(["bench", "--damper", "damper1", "--units", "4", "--outlier-unit", "2", "--tests", "0.5-0.5",
-                 "--runs", "6", "--seed", "5", "-o", str(bench)]) == 0
+                 "--runs-per-test", "6", "--seed", "5", "-o", str(bench)]) == 0
     runs = root / "runs"
     assert main(["run", "--bench", str(bench), "--design", "damper1", "--until", "sample", "--runs", str(runs),
                  "--quiet", "--workers", "1"]) == 0

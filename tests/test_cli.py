@@ -1,3 +1,5 @@
+import argparse
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -100,3 +102,26 @@ def test_help_has_no_doubled_percent_and_errors_name_the_program_once(capsys):
         assert "%%" not in parser.format_help(), name
     assert main(["run", "--bogus"]) == 2
     assert capsys.readouterr().err.strip() == "sbcal: error: unrecognized arguments: --bogus"
+
+
+def test_every_subcommand_spells_the_shared_options_one_way(capsys):
+    # one spelling per concept: the run store --runs DIR, the output -o/--output, the seed --seed SEED,
+    # --quiet with one meaning; old spellings hidden (deprecated for one release) and still working
+    from sbcal.cli.app import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    quiet_help = {a.help for sp in sub.choices.values() for a in sp._actions if "--quiet" in a.option_strings}
+    assert len(quiet_help) == 1
+    for name, parser in sub.choices.items():
+        opts = {o: a for a in parser._actions for o in a.option_strings}
+        assert "--quiet" in opts, name
+        if "--seed" in opts:
+            assert opts["--seed"].metavar == "SEED", name
+        for o, a in opts.items():
+            if a.dest == "runs" and a.help != argparse.SUPPRESS and name != "bench":  # bench --runs N: runs per test
+                assert o == "--runs" and a.metavar == "DIR", (name, o)
+            if o == "-o":
+                assert a.option_strings == ["-o", "--output"], name
+    assert main(["sample", "--test", "9-9", "--out", "nowhere"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "sbcal: warning: --out is deprecated (kept for one release): use --runs" and "9-9" in err[1]

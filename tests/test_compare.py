@@ -140,7 +140,7 @@ def test_lab_gap_reads_the_largest_point_gap():
 def benches(tmp_path_factory):
     d = tmp_path_factory.mktemp("compare")
     for name, ej, seed in (("before", "11.3", 1), ("after", "7.9", 2)):  # a 30 % stiffness loss
-        assert main(["bench", "--damper", "damper1", "--set", f"EJ={ej}", "--tests", "1-1", "--runs", "12",
+        assert main(["bench", "--damper", "damper1", "--set", f"EJ={ej}", "--tests", "1-1", "--runs-per-test", "12",
                      "--seed", str(seed), "-o", str(d / f"{name}.csv")]) == 0
     (d / "spec.toml").write_text(SPEC)
     return d

@@ -104,8 +104,8 @@ def test_dask_cluster_gives_the_same_draws(bench_path, tmp_path):
 
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         common = ["sample", "--all", "--damper", "damper1", "--bench", str(bench_path), "--seed", "7", "--quiet"]
-        assert main(common + ["--out", str(tmp_path / "cluster"), "--scheduler", cluster.scheduler_address]) == 0
-    assert main(common + ["--out", str(tmp_path / "local"), "--workers", "1"]) == 0
+        assert main(common + ["--runs", str(tmp_path / "cluster"), "--scheduler", cluster.scheduler_address]) == 0
+    assert main(common + ["--runs", str(tmp_path / "local"), "--workers", "1"]) == 0
     for t in ("0.2-0.2", "0.5-0.5", "1-1"):
         a, b = (xr.open_dataset(tmp_path / w / "damper1" / t / "theta1" / "posterior.nc", group="posterior")
                 for w in ("cluster", "local"))
@@ -115,7 +115,7 @@ def test_dask_cluster_gives_the_same_draws(bench_path, tmp_path):
 
 def test_scheduler_that_does_not_answer_is_one_line(bench_path, tmp_path, capsys):
     pytest.importorskip("distributed")
-    rc = main(["sample", "--test", "0.5-0.5", "--bench", str(bench_path), "--out", str(tmp_path),
+    rc = main(["sample", "--test", "0.5-0.5", "--bench", str(bench_path), "--runs", str(tmp_path),
                "--scheduler", "tcp://127.0.0.1:9", "--quiet"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "--scheduler tcp://127.0.0.1:9" in err and "\n" not in err

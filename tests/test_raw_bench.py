@@ -190,7 +190,7 @@ def test_bad_settings_are_one_line(damper1, config, options, match):
 # --- the CLI ---------------------------------------------------------------------------------------
 
 ARGV = ["bench", "--damper", "damper1", "--effect", SLIP, "--set", "EJ=4.4", "--set", "beta=0.11", "--tests", TEST,
-        "--runs", "1", "--seed", "3"]
+        "--runs-per-test", "1", "--seed", "3"]
 
 
 @pytest.mark.parametrize("fmt, ext", [("tdms", ".tdms"), ("hdf5", ".h5")])
@@ -214,7 +214,7 @@ def test_cli_without_raw_is_the_csv_bench(tmp_path):
     # the bench CSV for a seed is record()'s frame, as before the raw options existed (the bundled data's
     # regeneration in tests/test_virtual_bench.py pins the draws themselves)
     out, expected = tmp_path / "b.csv", tmp_path / "e.csv"
-    argv = ["bench", "--damper", "damper2", "--effect", "fixture_mass=0.05", "--tests", "2-1", "--runs", "3"]
+    argv = ["bench", "--damper", "damper2", "--effect", "fixture_mass=0.05", "--tests", "2-1", "--runs-per-test", "3"]
     assert main(argv + ["--seed", "11", "-o", str(out)]) == 0
     d = __import__("sbcal").model.damper.resolve_damper("damper2")
     write_bench(record(d, BenchConfig(effects={"fixture_mass": 0.05}, runs=3), ["2-1"], rng=np.random.default_rng(11)),
@@ -229,7 +229,7 @@ def test_cli_without_raw_is_the_csv_bench(tmp_path):
 ])
 def test_cli_refuses_raw_without_the_time_domain(tmp_path, capsys, extra, match):
     out = tmp_path / "b.csv"
-    argv = ["bench", "--damper", "damper1", "--effect", "strand_slip=0.006", "--runs", "1", "-o", str(out)]
+    argv = ["bench", "--damper", "damper1", "--effect", "strand_slip=0.006", "--runs-per-test", "1", "-o", str(out)]
     rc = main(argv + [str(tmp_path / "raw") if a == "RAW" else a for a in extra])
     err = capsys.readouterr().err
     assert rc == 2 and match in err and err.count("\n") == 1 and "Traceback" not in err

@@ -302,7 +302,7 @@ def test_parse_effect():
 
 def test_cli_bench_writes_the_plan(tmp_path, capsys):
     out = tmp_path / "b.csv"
-    rc = main(["bench", "--damper", "damper2", "--effect", "fixture_mass=0.05", "--set", "EJ=8", "--runs", "3",
+    rc = main(["bench", "--damper", "damper2", "--effect", "fixture_mass=0.05", "--set", "EJ=8", "--runs-per-test", "3",
                "--seed", "4", "-o", str(out)])
     assert rc == 0 and "wrote" in capsys.readouterr().out
     s = pd.read_csv(out)
@@ -310,11 +310,11 @@ def test_cli_bench_writes_the_plan(tmp_path, capsys):
     assert list(s.test.unique()) == list(DEFAULT_TESTS) and (s.damper == "damper2").all()
     assert (s.groupby("test").run.nunique() == 3).all() and len(s) == 8 * 3 * F.size
     again = tmp_path / "c.csv"
-    assert main(["bench", "--damper", "damper2", "--effect", "fixture_mass=0.05", "--set", "EJ=8", "--runs", "3",
+    assert main(["bench", "--damper", "damper2", "--effect", "fixture_mass=0.05", "--set", "EJ=8", "--runs-per-test", "3",
                  "--seed", "4", "-o", str(again)]) == 0
     assert out.read_bytes() == again.read_bytes()
     ideal = tmp_path / "i.csv"
-    assert main(["bench", "--damper", "damper1", "--ideal", "--runs", "1", "--tests", "1-1", "-o", str(ideal)]) == 0
+    assert main(["bench", "--damper", "damper1", "--ideal", "--runs-per-test", "1", "--tests", "1-1", "-o", str(ideal)]) == 0
     s = pd.read_csv(ideal)
     d = __import__("sbcal").load_damper(ROOT / "sbcal" / "models" / "damper1.toml")
     np.testing.assert_allclose(s.stiffness_n_per_m, np.abs(dynamic_stiffness(d, F, EJ=11.3, beta=0.3)[0]), rtol=1e-9)
@@ -327,7 +327,7 @@ def test_cli_bench_writes_the_plan(tmp_path, capsys):
     (["--effect", "strand_slip=law:iwan5,chi_macro:0.02,clamp:dahl/0.2"], "clamp zone: the dahl law needs chi_dahl"),
     (["--set", "EX=1"], "unknown parameter"),
     (["--tests", "1-x"], "test '1-x'"),
-    (["--runs", "0"], "--runs"),
+    (["--runs-per-test", "0"], "--runs-per-test"),
 ])
 def test_cli_bench_bad_input(tmp_path, capsys, argv, match):
     out = tmp_path / "b.csv"

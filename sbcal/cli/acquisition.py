@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from .options import quiet_option
+
 
 __all__ = ["add_import", "cmd_import"]
 
@@ -21,7 +23,7 @@ def add_import(sub):
     p.add_argument("--fixture", nargs="+", default=(), metavar="RAW",
                    help="recordings of the bare fixture (no damper): its complex force per line is subtracted")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="the bench CSV to write")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    quiet_option(p)
     return p
 
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+import warnings
 
-from ..core.errors import InputError
+from ..core.errors import InputError, InputWarning
 from ..core.version import __version__
 from ..core.workers import one_blas_thread
 from .acquisition import add_import, cmd_import
@@ -53,9 +54,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(shown: set):
+    """``warnings.showwarning`` that prints an :class:`InputWarning` once, as one line, and the rest as Python does."""
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, InputWarning):
+            if str(message) not in shown:
+                shown.add(str(message))
+                print(f"sbcal: warning: {message}", file=sys.stderr)
+            return
+        default(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def main(argv=None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
     parser = build_parser()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        warnings.showwarning = _one_line(set())
+        return _main(parser, argv)
+
+
+def _main(parser, argv) -> int:
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
         args = parser.parse_args(argv)

@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import InputError
-from .options import (bench_for, bench_options, check_dampers, cleaned_for, parse_frequencies, parse_set,
-                      print_summary, scale_options, seed_value, settings_from, workers_option)
+from .options import (bench_for, bench_options, check_dampers, cleaned_for, deprecated_alias, parse_frequencies,
+                      parse_set, print_summary, quiet_option, scale_options, seed_value, settings_from,
+                      workers_option)
 
 
 __all__ = [
@@ -27,6 +28,7 @@ def add_simulate(sub):
     p.add_argument("--frequencies", default="standard", metavar="standard|LIST",
                    help="'standard' (37 lines, 4-40 Hz) or comma-separated Hz")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    quiet_option(p)
     return p
 
 
@@ -57,14 +59,15 @@ def add_sample(sub):
     p.add_argument("--damper", default="damper1", help="bundled damper name or TOML path (default damper1)")
     bench_options(p)
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
-    p.add_argument("--priors", "--prior", dest="priors", metavar="PATH",
-                   help="prior file (default: the bundled priors/default.toml)")
+    p.add_argument("--priors", metavar="PATH", help="prior file (default: the bundled priors/default.toml)")
+    deprecated_alias(p, "--prior", "--priors", "priors")
     p.add_argument("--method", choices=("bayes", "point", "ga"), default="bayes",
                    help="bayes: the posterior (default); point: the thesis's point fit only, its cost minimised by "
                         "differential evolution (the baseline; 'ga' is the same, named after the thesis's "
                         "genetic algorithm)")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
-    p.add_argument("--out", default="runs", metavar="DIR", help="run store (default runs/)")
+    p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
+    deprecated_alias(p, "--out", "--runs", "runs")
     scale_options(p, "tests in parallel processes")
     return p
 
@@ -82,21 +85,21 @@ def cmd_sample(args) -> int:
         bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
     settings = settings_from(args)
     load_prior(args.params, damper, args.priors)  # fail early on a bad set or file, before anything is stored
-    data = cleaned_for(bench, [damper], store=args.out, settings=settings, quiet=args.quiet)
+    data = cleaned_for(bench, [damper], store=args.runs, settings=settings, quiet=args.quiet)
     if args.method in ("point", "ga"):
         for t in tests:
-            doc = point_fit_test(damper, data, t, paramset=args.params, seed=args.seed, out=args.out,
+            doc = point_fit_test(damper, data, t, paramset=args.params, seed=args.seed, out=args.runs,
                                  prior_path=args.priors)
             vals = ", ".join(f"{k}={v:.4g}" for k, v in doc["parameters"].items())
             print(f"{damper.name} {t} {args.params} (GA point fit): {vals}; cost {doc['cost']:.4g}, "
                   f"{doc['generations']} generations, {doc['wall_s']:.1f} s")
         return 0
     with executor_for(args.scheduler) as executor:
-        done = sample_tests(data, [(damper, t) for t in tests], store=args.out, settings=settings, executor=executor,
+        done = sample_tests(data, [(damper, t) for t in tests], store=args.runs, settings=settings, executor=executor,
                             command=args.command_line, reuse=False, progress=not args.quiet)
     for (name, t), (s, _) in done.items():
         print_summary(name, t, args.params, s)
-    print(f"stored in {args.out}/{damper.name}/<test>/{args.params}/")
+    print(f"stored in {args.runs}/{damper.name}/<test>/{args.params}/")
     return 0
 
 
@@ -111,6 +114,7 @@ def add_data(sub):
     p.add_argument("--json", metavar="OUT", help="also write the summary as JSON")
     p.add_argument("--z-threshold", type=float, default=None, metavar="Z",
                    help="outlier run-score threshold (default 3)")
+    quiet_option(p)
     return p
 
 
@@ -168,6 +172,7 @@ def add_map(sub):
     p.add_argument("--json", metavar="OUT", help="write the fit as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="figure: EJ and beta versus amplitude, every damper in the run store")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED")
+    quiet_option(p)
     return p
 
 
@@ -198,7 +203,7 @@ def cmd_map(args) -> int:
             damper = resolve_damper(args.damper)
             data = cleaned_for(bench_for(args), [damper], store=args.runs, settings=settings_from(args))
             joint = joint_from_runs(damper, data, args.runs, doc, args.params,
-                                    seed=args.seed, progress=f"{args.damper} joint")
+                                    seed=args.seed, progress=None if args.quiet else f"{args.damper} joint")
             doc["joint"] = joint
             flag = "" if joint["converged"] else f" NOT CONVERGED ({joint['convergence']['reason']})"
             print(f"{key}: joint model k {joint['k'][0]:.3g} [{joint['k'][1]:.3g}, {joint['k'][2]:.3g}] N m^2, "
@@ -250,6 +255,7 @@ def add_report(sub):
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")
     p.add_argument("--params", default="theta1", metavar="SET", help="parameter set (default theta1)")
     workers_option(p, "processes drawing the figures")
+    quiet_option(p)
     return p
 
 
@@ -331,7 +337,8 @@ def add_bench(sub):
     p.add_argument("--tests", nargs="+", metavar="LABEL",
                    help="test labels A-B (default: the thesis's plan 0.1-0.1 0.2-0.2 0.3-0.3 0.4-0.4 0.5-0.5 "
                         "1-1 2-2 2-1)")
-    p.add_argument("--runs", type=int, default=24, metavar="N", help="runs per test (default 24)")
+    p.add_argument("--runs-per-test", type=int, default=24, metavar="N", help="runs per test (default 24)")
+    deprecated_alias(p, "--runs", "--runs-per-test", "runs_per_test")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--ideal", action="store_true", help="no run-to-run scatter, noise or outliers")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
@@ -350,6 +357,7 @@ def add_bench(sub):
     raw.add_argument("--sensor-noise", type=float, metavar="REL",
                      help="white noise per channel over its RMS (default 1e-3; 0: none)")
     raw.add_argument("--hold-periods", type=int, metavar="N", help="steady periods held at each line (default 40)")
+    quiet_option(p)
     return p
 
 
@@ -374,7 +382,7 @@ def _bench_raw(args, damper, config, tests) -> int:
     runs = []
     try:
         for test in tests:
-            for run in iter_raw(damper, config, test, rng=rng, progress=f"{damper.name} {test}", **options):
+            for run in iter_raw(damper, config, test, rng=rng, progress=None if args.quiet else f"{damper.name} {test}", **options):
                 write_raw(args.raw, run, args.raw_format or "tdms")
                 runs.append(run)
     except InputError as e:
@@ -385,7 +393,7 @@ def _bench_raw(args, damper, config, tests) -> int:
     write_channel_map(Path(args.raw) / "channels.toml")
     write_bench(truth_frame(runs), args.output)
     print(f"wrote {len(runs)} raw files and channels.toml to {args.raw}, truth lines to {args.output}: "
-          f"{damper.name}, {len(tests)} tests x {args.runs} runs")
+          f"{damper.name}, {len(tests)} tests x {args.runs_per_test} runs")
     return 0
 
 
@@ -404,7 +412,7 @@ def _bench_lot(args, damper, config, tests) -> int:
     write_bench(frame, args.output)
     planted = [u for u, t in truth.items() if t["outlier"]]
     print(f"wrote {args.output}: {args.units} units of {damper.name} ({next(iter(truth))} ...), {len(tests)} tests x "
-          f"{args.runs} runs, effects: {', '.join(config.effects) or 'none'}"
+          f"{args.runs_per_test} runs, effects: {', '.join(config.effects) or 'none'}"
           + (f"; {planted[0]} planted at EJ {lot.outlier_ej:+.0%}" if planted else ""))
     return 0
 
@@ -425,9 +433,9 @@ def cmd_bench(args) -> int:
         if name in effects:
             raise InputError(f"--effect {spec!r}: {name} is given twice")
         effects[name] = value
-    if args.runs < 1:
-        raise InputError(f"--runs {args.runs}: must be >= 1")
-    config = BenchConfig(params=params, effects=effects, runs=args.runs)
+    if args.runs_per_test < 1:
+        raise InputError(f"--runs-per-test {args.runs_per_test}: must be >= 1")
+    config = BenchConfig(params=params, effects=effects, runs=args.runs_per_test)
     tests = args.tests or DEFAULT_TESTS
     if args.raw:
         return _bench_raw(args, damper, config.ideal() if args.ideal else config, tests)
@@ -440,6 +448,6 @@ def cmd_bench(args) -> int:
         raise InputError("--outlier-unit: only with --units N")
     frame = record(damper, config.ideal() if args.ideal else config, tests, rng=np.random.default_rng(args.seed))
     write_bench(frame, args.output)
-    print(f"wrote {args.output}: {damper.name}, {len(tests)} tests x {args.runs} runs, "
+    print(f"wrote {args.output}: {damper.name}, {len(tests)} tests x {args.runs_per_test} runs, "
           f"effects: {', '.join(effects) or 'none'}")
     return 0

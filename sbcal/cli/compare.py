@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..core.errors import InputError
-from .options import seed_value
+from .options import quiet_option, seed_value
 
 
 __all__ = ["add_compare", "cmd_compare"]
@@ -29,7 +29,7 @@ def add_compare(sub):
     p.add_argument("--draws", type=int, default=1000, metavar="N", help="posterior draws per side (default 1000)")
     p.add_argument("-o", "--output", metavar="DIR", help="where to write (default <runs>/compare/<before>-vs-<after>)")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    quiet_option(p)
     return p
 
 

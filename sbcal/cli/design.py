@@ -7,7 +7,7 @@ import sys
 import numpy as np
 
 from ..core.errors import InputError
-from .options import parse_frequencies, scale_options, seed_value
+from .options import quiet_option, parse_frequencies, scale_options, seed_value
 
 
 __all__ = ["add_predict", "cmd_predict", "add_span", "cmd_span", "add_design", "cmd_design"]
@@ -44,6 +44,7 @@ def add_predict(sub):
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("-o", "--output", metavar="OUT.csv", help="also write the CSV here")
     p.add_argument("--plot", metavar="PNG", help="also write the figure here")
+    quiet_option(p)
     return p
 
 
@@ -153,7 +154,7 @@ def add_span(sub):
                    help="output directory (default <runs>/span/<label>/, <runs> the store holding the cable run, "
                         "runs/ for a bare span)")
     p.add_argument("--json", metavar="FILE", help="also write the summary JSON here")
-    p.add_argument("--quiet", action="store_true", help="print only the output directory (warnings still on stderr)")
+    quiet_option(p)
     return p
 
 
@@ -193,46 +194,45 @@ def cmd_span(args) -> int:
     out = store_span(study, args.output, meta={"made_by": args.command_line}, json_path=args.json)
     for w in study.warnings:
         print(f"sbcal: warning: {w}", file=sys.stderr)
-    if not args.quiet:
-        r, c = study.result, study.result.conductor
-        ws = study.worst_stress_mpa()
-        if study.cable:
-            how = "its own cable" if study.cable_damper == study.damper else f"the {study.cable_damper} cable"
-            src = f"{study.damper} with {how} ({study.state}, {study.law}; {study.cable}), {r.n_draws} draws"
-        else:
-            src = "no damper"
-        print(f"{c.name}: {c.tension_pct_rts:.0f} % RTS, {c.span_length_m:g} m span; winds {r.wind_mps[0]:g}-"
-              f"{r.wind_mps[-1]:g} m/s ({r.freq_hz.size} lines, {r.freq_hz[0]:.3g}-{r.freq_hz[-1]:.3g} Hz); {src}")
-        print(f"  fatigue limit {r.limit_pa * 1e-6:.3g} MPa; margin = limit / worst stress over the band")
-        print(f"  no damper   : worst stress {ws['bare']:.3g} MPa, margin {r.margin_bare:.3g} "
-              f"({_margin_words(r.margin_bare)})")
-        if r.positions_m:
-            m = r.margin
-            q05, q50, q95 = np.quantile(m, [0.05, 0.5, 0.95])
-            where = ", ".join(f"{x:.3g}" for x in r.positions_m)
-            ends = "both ends" if r.ends == 2 else "one end"
-            print(f"  with damper : {r.n_dampers} damper{'s' if r.n_dampers > 1 else ''} at {where} m from the clamp "
-                  f"({ends}): worst stress "
-                  f"{ws['median']:.3g} [{ws['q05']:.3g}, {ws['q95']:.3g}] MPa, margin {q50:.3g} [{q05:.3g}, {q95:.3g}] "
-                  f"(median [5 %, 95 %]; {_margin_words(q05)} for 95 % of the draws)")
-            wl = study.worst_line()
-            me = study.model_error
-            band = ("posterior and tolerances" if me is None else
-                    "posterior, tolerances and model discrepancy" if any(me["logmag_sd"] + me["phase_sd_deg"]) else
-                    "posterior and tolerances; no model discrepancy: the cable fit is complete")
-            print(f"  worst line  : {wl['frequency_hz']:.3g} Hz (wind {wl['wind_m_s']:.3g} m/s), stress "
-                  f"{wl['stress_mpa']['median']:.3g} [{wl['stress_mpa']['q05']:.3g}, {wl['stress_mpa']['q95']:.3g}] MPa "
-                  f"(band: {band})")
-        p = study.placement
-        if p is not None:
-            q = round(100 * p.quantile)
-            print(f"  placement   : best {p.best_position_m:.3g} m (margin q{q:02d} {p.best_margin:.3g}, "
-                  f"{p.positions_m.size} positions {p.positions_m[0]:.3g}-{p.positions_m[-1]:.3g} m): "
-                  f"one damper {'at each end' if p.ends == 2 else 'at one end'} "
-                  f"{'suffices' if p.suffices else 'does NOT suffice'}")
-        if study.life is not None:
-            for line in study.life.words():
-                print(f"  life        : {line}")
+    r, c = study.result, study.result.conductor
+    ws = study.worst_stress_mpa()
+    if study.cable:
+        how = "its own cable" if study.cable_damper == study.damper else f"the {study.cable_damper} cable"
+        src = f"{study.damper} with {how} ({study.state}, {study.law}; {study.cable}), {r.n_draws} draws"
+    else:
+        src = "no damper"
+    print(f"{c.name}: {c.tension_pct_rts:.0f} % RTS, {c.span_length_m:g} m span; winds {r.wind_mps[0]:g}-"
+          f"{r.wind_mps[-1]:g} m/s ({r.freq_hz.size} lines, {r.freq_hz[0]:.3g}-{r.freq_hz[-1]:.3g} Hz); {src}")
+    print(f"  fatigue limit {r.limit_pa * 1e-6:.3g} MPa; margin = limit / worst stress over the band")
+    print(f"  no damper   : worst stress {ws['bare']:.3g} MPa, margin {r.margin_bare:.3g} "
+          f"({_margin_words(r.margin_bare)})")
+    if r.positions_m:
+        m = r.margin
+        q05, q50, q95 = np.quantile(m, [0.05, 0.5, 0.95])
+        where = ", ".join(f"{x:.3g}" for x in r.positions_m)
+        ends = "both ends" if r.ends == 2 else "one end"
+        print(f"  with damper : {r.n_dampers} damper{'s' if r.n_dampers > 1 else ''} at {where} m from the clamp "
+              f"({ends}): worst stress "
+              f"{ws['median']:.3g} [{ws['q05']:.3g}, {ws['q95']:.3g}] MPa, margin {q50:.3g} [{q05:.3g}, {q95:.3g}] "
+              f"(median [5 %, 95 %]; {_margin_words(q05)} for 95 % of the draws)")
+        wl = study.worst_line()
+        me = study.model_error
+        band = ("posterior and tolerances" if me is None else
+                "posterior, tolerances and model discrepancy" if any(me["logmag_sd"] + me["phase_sd_deg"]) else
+                "posterior and tolerances; no model discrepancy: the cable fit is complete")
+        print(f"  worst line  : {wl['frequency_hz']:.3g} Hz (wind {wl['wind_m_s']:.3g} m/s), stress "
+              f"{wl['stress_mpa']['median']:.3g} [{wl['stress_mpa']['q05']:.3g}, {wl['stress_mpa']['q95']:.3g}] MPa "
+              f"(band: {band})")
+    p = study.placement
+    if p is not None:
+        q = round(100 * p.quantile)
+        print(f"  placement   : best {p.best_position_m:.3g} m (margin q{q:02d} {p.best_margin:.3g}, "
+              f"{p.positions_m.size} positions {p.positions_m[0]:.3g}-{p.positions_m[-1]:.3g} m): "
+              f"one damper {'at each end' if p.ends == 2 else 'at one end'} "
+              f"{'suffices' if p.suffices else 'does NOT suffice'}")
+    if study.life is not None:
+        for line in study.life.words():
+            print(f"  life        : {line}")
     print(f"stored in {out}/" + (f"; wrote {args.json}" if args.json else ""))
     return 0
 
@@ -301,9 +301,9 @@ def cmd_design(args) -> int:
     climate = parse_climate(args.climate) if args.climate else None
     across = _check_across(args.across)
     conductor = resolve_conductor(args.conductor)
-    cable = load_cable_run(args.cable)
     start = resolve_damper(args.damper)
-    space = load_space(args.space, start)
+    space = load_space(args.space, start)  # the input files first, then the run store
+    cable = load_cable_run(args.cable)
     try:
         with executor_for(args.scheduler) as executor:
             res = design(conductor, cable.path, start, space, objective=args.objective, climate=climate, across=across,
@@ -318,18 +318,17 @@ def cmd_design(args) -> int:
     out = store_design(res, args.output or design_dir(res, start.name), meta={"made_by": args.command_line})
     for w in res.warnings:
         print(f"sbcal: warning: {w}", file=sys.stderr)
-    if not args.quiet:
-        what = "margin" if res.objective == "margin" else "service life [years]"
-        print(f"{conductor.name}: design of {start.name} with the {cable.damper} {cable.state} cable ({cable.law}); "
-              f"{len(space.fields)} free field(s), {len(res.records)} designs evaluated "
-              f"({res.optimiser['generations']} generations of {res.optimiser['popsize']})")
-        for name, rec in (("start", res.start), ("best", res.best)):
-            m = rec["margin"]
-            fields = ", ".join(f"{k} = {v:.4g}" for k, v in rec["fields"].items())
-            print(f"  {name:5s}: {fields}; total mass {rec['total_mass_kg']:.3g} kg; at {rec['position_m']:.3g} m: "
-                  f"{what} q10 {_number_or_unlimited(rec['objective'])} (margin {m['median']:.3g} [{m['q05']:.3g}, "
-                  f"{m['q95']:.3g}])"
-                  + ("  EXTRAPOLATED" if rec["extrapolated"] else ""))
+    what = "margin" if res.objective == "margin" else "service life [years]"
+    print(f"{conductor.name}: design of {start.name} with the {cable.damper} {cable.state} cable ({cable.law}); "
+          f"{len(space.fields)} free field(s), {len(res.records)} designs evaluated "
+          f"({res.optimiser['generations']} generations of {res.optimiser['popsize']})")
+    for name, rec in (("start", res.start), ("best", res.best)):
+        m = rec["margin"]
+        fields = ", ".join(f"{k} = {v:.4g}" for k, v in rec["fields"].items())
+        print(f"  {name:5s}: {fields}; total mass {rec['total_mass_kg']:.3g} kg; at {rec['position_m']:.3g} m: "
+              f"{what} q10 {_number_or_unlimited(rec['objective'])} (margin {m['median']:.3g} [{m['q05']:.3g}, "
+              f"{m['q95']:.3g}])"
+              + ("  EXTRAPOLATED" if rec["extrapolated"] else ""))
     same = "".join(f" {opt} {value}" for opt, value, default in (
         ("--dampers", args.dampers, 1), ("--wind", args.wind, "1:7"), ("--lines", args.lines, 60),
         ("--draws", args.draws, 200), ("--seed", args.seed, 0)) if value != default)

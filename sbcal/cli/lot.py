@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ..core.errors import InputError
-from .options import seed_value
+from .options import quiet_option, seed_value
 
 
 __all__ = ["add_batch", "cmd_batch"]
@@ -25,7 +24,7 @@ def add_batch(sub):
     p.add_argument("--paramset", default="theta1", metavar="SET", help="parameter set of the stored runs (default theta1)")
     p.add_argument("-o", "--output", metavar="DIR", help="where to write (default <runs>/batch)")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_option(p)
     return p
 
 

@@ -12,7 +12,7 @@ from ..core.workers import default_workers
 
 
 __all__ = [
-    "Parser", "seed_value", "parse_set", "parse_frequencies", "bench_options", "damper_options", "workers_option", "scale_options",
+    "Parser", "deprecated_alias", "quiet_option", "seed_value", "parse_set", "parse_frequencies", "bench_options", "damper_options", "workers_option", "scale_options",
     "bench_for", "check_dampers", "cleaned_for", "settings_from", "print_summary",
 ]
 
@@ -23,6 +23,31 @@ class Parser(argparse.ArgumentParser):
         # the CLI prints "sbcal: error: ..." itself: name the subcommand only ("run: argument --x: ...")
         sub = self.prog.removeprefix("sbcal").strip()
         raise InputError(f"{sub}: {message}" if sub else message)
+
+
+class _Deprecated(argparse.Action):
+    """An old spelling of an option: stores to the new one's ``dest`` and says so on stderr, once."""
+
+    def __init__(self, option_strings, dest, new: str = "", **kw):
+        self.new = new
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import sys
+
+        print(f"sbcal: warning: {option_string} is deprecated (kept for one release): use {self.new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def deprecated_alias(p, old: str, new: str, dest: str) -> None:
+    """Keep ``old`` working for one release as a hidden spelling of ``new`` (one deprecation line when used)."""
+    p.add_argument(old, dest=dest, action=_Deprecated, new=new, help=argparse.SUPPRESS)
+
+
+def quiet_option(p) -> None:
+    """``--quiet``, one meaning on every command: no progress bars or stage lines (results, warnings and errors
+    still print)."""
+    p.add_argument("--quiet", action="store_true", help="no progress bars or stage lines (results, warnings and errors still print)")
 
 
 def seed_value(text: str) -> int:
@@ -98,7 +123,7 @@ def scale_options(p, workers_help="jobs in parallel local processes"):
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="send the jobs to a running Dask distributed cluster (e.g. tcp://host:8786; "
                         "pip install \"sbcal[dask]\")")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    quiet_option(p)
 
 
 def bench_for(args):

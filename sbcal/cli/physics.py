@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..inference.store import cable_dir, diagnose_path
-from .options import bench_for, cleaned_for, damper_options, scale_options, seed_value, settings_from, workers_option
+from .options import quiet_option, bench_for, cleaned_for, damper_options, scale_options, seed_value, settings_from, workers_option
 
 
 __all__ = ["add_diagnose", "cmd_diagnose", "add_cable", "cmd_cable"]
@@ -121,7 +121,7 @@ def add_cable(sub):
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     workers_option(p, "processes per fit")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    quiet_option(p)
     return p
 
 

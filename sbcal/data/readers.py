@@ -135,7 +135,41 @@ def _finish(source, df: pd.DataFrame, where: _Where) -> pd.DataFrame:
         raise InputError(
             f"{source}: {at_b}: columns 'damper','test','run','frequency_hz': duplicate of {at_a} "
             f"({row['damper']} {row['test']} run {row['run']} at {row['frequency_hz']:g} Hz)")
+    _check_units(source, df, where)
     return df
+
+
+# Unit slips the contract's units make visible, per test (docs/data.md): an amplitude in metres reads as a few
+# micrometres, a phase in radians never leaves +-2 pi, a stiffness in kN/m or N/mm weighs a few grams.
+_LEAST_AMPLITUDE_MM_PP = 0.002  # a shaker test's least, about ten times a laser vibrometer's noise floor
+_LARGEST_AMPLITUDE_MM_PP = 200.0
+_LEAST_APPARENT_MASS_KG = 0.02  # median |K| / omega^2 over the test's rows: a damper's moving mass is kilograms
+
+
+def _check_units(source, df: pd.DataFrame, where: _Where) -> None:
+    """One line for the first test (file order) whose values say the file's units are not the contract's."""
+    omega2 = (2 * np.pi * df["frequency_hz"].to_numpy()) ** 2
+    frame = pd.DataFrame({"key": df["damper"] + "\x00" + df["test"], "amp": df["amplitude_mm_pp"].to_numpy(),
+                          "phase": np.abs(df["phase_deg"].to_numpy()),
+                          "mass": df["stiffness_n_per_m"].to_numpy() / omega2})
+    g = frame.groupby("key", sort=False)
+    stats = pd.DataFrame({"first": g.apply(lambda x: x.index[0], include_groups=False), "amp": g["amp"].median(),
+                          "phase": g["phase"].max(), "mass": g["mass"].median()})
+    for key, row in stats.iterrows():
+        at = f"{source}: {where([int(row['first'])])[0]}"
+        test = key.replace("\x00", " ")
+        if row["amp"] < _LEAST_AMPLITUDE_MM_PP:
+            raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
+                             f"below any shaker test's {_LEAST_AMPLITUDE_MM_PP:g} mm: metres typed as millimetres?")
+        if row["amp"] > _LARGEST_AMPLITUDE_MM_PP:
+            raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
+                             f"above {_LARGEST_AMPLITUDE_MM_PP:g} mm: micrometres typed as millimetres?")
+        if 0.5 < row["phase"] < 2 * np.pi + 0.1:  # a damper's phase reaches 180 deg below its first resonance
+            raise InputError(f"{at}: column 'phase_deg': every phase of {test} lies within +-2 pi (largest "
+                             f"{row['phase']:.3g}): radians? sbcal reads degrees")
+        if row["mass"] < _LEAST_APPARENT_MASS_KG:
+            raise InputError(f"{at}: column 'stiffness_n_per_m': {test}'s stiffness over omega^2 is {1e3 * row['mass']:.3g} g "
+                             f"(median over its rows), a damper's moving mass is kilograms: kN/m or N/mm typed as N/m?")
 
 
 def _validated(source, df: pd.DataFrame, where: _Where, explain: _Explain) -> pd.DataFrame:
@@ -200,7 +234,8 @@ def load_bench(path, sheet: str | None = None) -> BenchData:
         (``3.0`` is read as 3; ``1.5`` is rejected); an empty damper or test label; a CSV row
         with more fields than the header; two rows with the same (damper, test, run,
         frequency_hz) (both named); an empty file, sheet or header without rows; a missing
-        sheet; a missing or unreadable file.
+        sheet; a missing or unreadable file; a test whose values show a unit slip (amplitudes in metres,
+        phases in radians, stiffness in kN/m: :func:`_check_units`).
 
     Notes
     -----

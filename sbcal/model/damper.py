@@ -7,12 +7,14 @@ Units are SI throughout. The parameter names used here (``m1``, ``J1``, ``a1``, 
 
 from __future__ import annotations
 
+import difflib
 import math
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..core._io import bundled_names, name_and_description, read_toml, resolve_bundled
-from ..core.errors import InputError
+from ..core.errors import InputError, InputWarning
 
 
 __all__ = ["Damper", "GEOMETRY", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
@@ -106,6 +108,46 @@ FILE_KEYS = {f"{table}.{key}": field for table, key, field, _, _ in _FIELDS}
 
 _CHECKS = {field: check for _, _, field, _, check in _FIELDS}
 
+# field -> (least, largest, unit, what): a value outside is refused as a unit slip (mm or g typed in an SI file),
+# with bounds wide enough for any Stockbridge damper (end masses of 0.2-8 kg, arms of 0.1-0.4 m are usual)
+_PLAUSIBLE = {
+    **{f"m{b}": (0.02, 50.0, "kg", "an end mass") for b in "12"},
+    "mc": (0.005, 20.0, "kg", "the clamp"),
+    **{f"J{b}": (0.0, 2.0, "kg m^2", "an inertia") for b in "12c"},
+    **{f"a{b}": (-0.5, 0.5, "m", "an offset") for b in "12c"},
+    **{f"L{b}": (0.01, 2.0, "m", "a cable arm") for b in "12"},
+    "mu": (0.0, 20.0, "kg/m", "the messenger cable"),
+    "ej_static": (0.05, 1e5, "N m^2", "the messenger's full-stick rigidity"),
+}
+
+_TABLES = ("clamp", "mass1", "mass2", "cable")
+
+
+def _plausible(path: str, key: str, field: str, x: float) -> float:
+    lo, hi, unit, what = _PLAUSIBLE[field]
+    if not lo <= x <= hi:
+        raise InputError(f"{path}: key '{key}': {x:g} {unit} is outside {lo:g} to {hi:g} {unit}, the plausible range for "
+                         f"{what} (the file is in SI units: millimetres or grams typed as metres or kilograms?)")
+    return x
+
+
+def _close_keys(path: str, doc: dict) -> dict:
+    """Unknown keys of the damper's tables that are one slip from a known one: ``{table.known: table.unknown}``
+    (other unknown keys are ignored, as the contract allows)."""
+    out = {}
+    for table in _TABLES:
+        section = doc.get(table)
+        if not isinstance(section, dict):
+            continue
+        known = [k for t, k, *_ in _FIELDS if t == table]
+        for key in section:
+            if key in known:
+                continue
+            close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+            if close:
+                out[f"{table}.{close[0]}"] = f"{table}.{key}"
+    return out
+
 DEFAULT_TOLERANCE_PCT = {"a1": 5.0, "a2": 5.0, "ac": 5.0}
 """Tolerances [+- %] of the fields a damper file's ``[tolerance]`` table does not state: the thesis's
 5 % on the centre-of-mass offsets (Table 4.4: a1, a2 within +-5 % of nominal)."""
@@ -154,7 +196,8 @@ def with_value(damper: Damper, key: str, value: float, *, where: str | None = No
         x = value if isinstance(value, bool) else float(value)  # numpy scalars as plain floats
     except (TypeError, ValueError):
         x = value  # _number names the wrong type
-    return replace(damper, **{field: _number(where or damper.source or "<damper>", file_key, x, _CHECKS[field])})
+    path = where or damper.source or "<damper>"
+    return replace(damper, **{field: _plausible(path, file_key, field, _number(path, file_key, x, _CHECKS[field]))})
 
 
 def damper_toml(damper: Damper, *, comment: str = "") -> str:
@@ -201,6 +244,7 @@ def _number(path: str, key: str, value, check: str) -> float:
 def parse_damper(doc: dict, path: str = "<damper>") -> Damper:
     """Validate a parsed TOML document and build a :class:`Damper` (see :func:`load_damper`)."""
     name, description = name_and_description(doc, path)
+    close = _close_keys(path, doc)
     values = {}
     for table, key, field, required, check in _FIELDS:
         full = f"{table}.{key}"
@@ -211,11 +255,15 @@ def parse_damper(doc: dict, path: str = "<damper>") -> Damper:
             raise InputError(f"{path}: key '{table}': expected a table, got {type(section).__name__}")
         if key not in section:
             if required:
-                raise InputError(f"{path}: key '{full}': missing")
+                hint = f" (the file has '{close[full]}')" if full in close else ""
+                raise InputError(f"{path}: key '{full}': missing{hint}")
             values[field] = 0.0
             continue
-        values[field] = _number(path, full, section[key], check)
-    return Damper(name=name, description=description, source=path, tolerance=_tolerance(doc, path), **values)
+        values[field] = _plausible(path, full, field, _number(path, full, section[key], check))
+    damper = Damper(name=name, description=description, source=path, tolerance=_tolerance(doc, path), **values)
+    for known, unknown in close.items():  # after every check: a refused file gets one line, its error
+        warnings.warn(f"{path}: key '{unknown}': unknown, ignored; did you mean '{known}'?", InputWarning, stacklevel=2)
+    return damper
 
 
 def load_damper(path) -> Damper:
@@ -224,8 +272,10 @@ def load_damper(path) -> Damper:
     Parameters
     ----------
     path : str or path-like
-        The TOML file. Extra keys are allowed and ignored, except inside the optional
-        ``[tolerance]`` table (see :attr:`Damper.tolerance`), whose keys must be damper-file fields.
+        The TOML file. Extra keys are allowed and ignored (the contract), except inside the optional
+        ``[tolerance]`` table (see :attr:`Damper.tolerance`), whose keys must be damper-file fields; an
+        unknown key one slip from a known one (``mass_g`` beside ``mass_kg``) is ignored with an
+        :class:`~sbcal.core.errors.InputWarning` naming the known key.
 
     Returns
     -------
@@ -236,6 +286,7 @@ def load_damper(path) -> Damper:
     InputError
         One line naming the file and key: missing file or key, malformed TOML, a value of the
         wrong type, a non-positive mass, length or EJ_static, a negative density or inertia, a non-finite value,
+        a value outside its plausible range (:data:`_PLAUSIBLE`: a 200 m arm, a 3100 kg mass),
         an unknown key or a value outside [0, 100) in ``[tolerance]``.
     """
     return parse_damper(read_toml(path), str(Path(path)))
