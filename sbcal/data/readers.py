@@ -149,15 +149,19 @@ _LEAST_APPARENT_MASS_KG = 0.02  # median |K| / omega^2 over the test's rows: a d
 def _check_units(source, df: pd.DataFrame, where: _Where) -> None:
     """One line for the first test (file order) whose values say the file's units are not the contract's."""
     omega2 = (2 * np.pi * df["frequency_hz"].to_numpy()) ** 2
-    frame = pd.DataFrame({"key": df["damper"] + "\x00" + df["test"], "amp": df["amplitude_mm_pp"].to_numpy(),
-                          "phase": np.abs(df["phase_deg"].to_numpy()),
+    code = df.groupby(["damper", "test"], sort=False).ngroup().to_numpy()
+    _, first = np.unique(code, return_index=True)  # each test's first row, in file order
+    frame = pd.DataFrame({"amp": df["amplitude_mm_pp"].to_numpy(), "phase": np.abs(df["phase_deg"].to_numpy()),
                           "mass": df["stiffness_n_per_m"].to_numpy() / omega2})
-    g = frame.groupby("key", sort=False)
-    stats = pd.DataFrame({"first": g.apply(lambda x: x.index[0], include_groups=False), "amp": g["amp"].median(),
-                          "phase": g["phase"].max(), "mass": g["mass"].median()})
-    for key, row in stats.iterrows():
-        at = f"{source}: {where([int(row['first'])])[0]}"
-        test = key.replace("\x00", " ")
+    g = frame.groupby(code, sort=True)
+    stats = pd.DataFrame({"first": first, "amp": g["amp"].median().to_numpy(), "phase": g["phase"].max().to_numpy(),
+                          "mass": g["mass"].median().to_numpy()})
+    bad = ((stats["amp"] < _LEAST_AMPLITUDE_MM_PP) | (stats["amp"] > _LARGEST_AMPLITUDE_MM_PP)
+           | ((stats["phase"] > 0.5) & (stats["phase"] < 2 * np.pi + 0.1)) | (stats["mass"] < _LEAST_APPARENT_MASS_KG))
+    for _, row in stats[bad].sort_values("first").head(1).iterrows():
+        at = f"{source}: {where([int(row['first'])])[0]}"  # only on error: a CSV's line numbers cost a re-read
+        first = df.iloc[int(row["first"])]
+        test = f"{first['damper']} {first['test']}"
         if row["amp"] < _LEAST_AMPLITUDE_MM_PP:
             raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
                              f"below any shaker test's {_LEAST_AMPLITUDE_MM_PP:g} mm: metres typed as millimetres?")

@@ -6,12 +6,10 @@ store it is drawn one of two ways (``docs/compare.md``):
 
 * **From a test's posterior** (``<runs>/<damper>/<test>/<paramset>/``), when the excitation is a constant
   amplitude the damper was tested at: per posterior draw, the damper's *true mean curve* on the test's
-  lines, the model curve plus the test's model discrepancy given the runs (the likelihood's
-  ``delta_k ~ N(0, s^2)``, :mod:`sbcal.inference.likelihood`): with ``n`` runs of noise ``sigma`` about
-  the run mean ``ybar``, ``delta | theta, y ~ N(w (ybar - mu), w sigma^2 / n)``, ``w = n s^2 / (sigma^2 + n s^2)``
-  (normal, the line's noise level taken as known), its error drawn with the runs' own covariance over the
-  lines (:func:`_mean_error`: a re-clamped run moves all its lines together). Where the model follows the runs (``s`` small) the
-  curve is the model's; where it misses them the curve follows the run means with their own error. Every
+  lines, the model curve plus the test's model discrepancy given the runs
+  (:func:`sbcal.inference.discrepancy.true_mean_draws`: the likelihood's discrepancy given the run mean,
+  whose error has the runs' own covariance over the lines). Where the model follows the runs (``s`` small)
+  the curve is the model's; where it misses them the curve follows the run means with their error. Every
   piece is stored with the run (model curves, runs, noise): no model solve.
 * **From the cable law** (``<runs>/<damper>/cable-<state>/``), at any excitation: per draw the
   distributed cable at every line (:func:`sbcal.design.predict.predict`'s solver, the damper's own
@@ -32,6 +30,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..data.labels import DRY, parse_label
+from ..inference.discrepancy import true_mean_draws
 from ..model.damper import Damper
 from .cable_run import subset_indices
 from .predict import _x0
@@ -122,17 +121,6 @@ def constant_tests(runs, damper: str, state: str, paramset: str) -> dict:
     return out
 
 
-def _mean_error(y, n, rng, n_draws: int) -> np.ndarray:
-    """Draws of the run mean's error, shape (2, S, F): ``sum_r z_r (y_r - ybar) / sqrt(n (n - 1))``, ``z_r ~ N(0, 1)``
-    per run and draw. Its covariance is the runs' own over the lines and quantities, divided by ``n``: a run
-    re-clamped shifts all its lines together, and an error smooth over the lines moves a resonance far less
-    than independent errors of the same size would."""
-    dev = np.nan_to_num(y - np.nanmean(y, axis=1, keepdims=True))  # (2, R, F); a missing run adds nothing
-    dev[1] = np.angle(np.exp(1j * dev[1]))
-    z = rng.standard_normal((n_draws, y.shape[1]))
-    return np.einsum("sr,qrf->qsf", z, dev) / np.sqrt(n * np.maximum(n - 1, 1))
-
-
 def from_test(directory, *, freq_range=None, n_draws: int = 1000, rng: np.random.Generator) -> Characteristic:
     """The characteristic at a test's own constant amplitude from its stored posterior (module docstring).
 
@@ -173,16 +161,16 @@ def from_test(directory, *, freq_range=None, n_draws: int = 1000, rng: np.random
     n_total = post.sizes["chain"] * post.sizes["draw"]
     idx = subset_indices(n_total, int(n_draws), rng)
     mu = np.stack([np.asarray(pp[v], float).reshape(n_total, -1)[idx] for v in ("model_logmag", "model_phase")])
-    s = np.stack([np.asarray(post[v], float).ravel()[idx] for v in ("sigma_mag", "sigma_phase")])[:, :, None]
+    s = np.stack([np.asarray(post[v], float).ravel()[idx] for v in ("sigma_mag", "sigma_phase")])
     obs = idata.observed_data
     y = np.stack([np.asarray(obs[v], float) for v in ("logmag", "phase")])  # (2, runs, F)
     n = np.sum(np.isfinite(y[0]), axis=0).astype(float)
-    ybar = np.nanmean(y, axis=1)[:, None, :]
-    sig2 = np.stack([np.asarray(idata.constant_data[v], float) for v in ("noise_logmag", "noise_phase")])[:, None, :] ** 2
-    resid = ybar - mu
-    resid[1] = np.angle(np.exp(1j * resid[1]))  # a phase residual wrapped to (-pi, pi]
-    w = n * s ** 2 / (sig2 + n * s ** 2)
-    true = mu + w * resid + np.sqrt(w) * _mean_error(y, n, rng, mu.shape[1])
+    noise = np.concatenate([np.asarray(idata.constant_data[v], float) ** 2 for v in ("noise_logmag", "noise_phase")])
+    F = f.size  # magnitude and phase as one vector of 2F columns: their errors are correlated
+    scale = np.concatenate([np.repeat(s[q][:, None], F, axis=1) for q in (0, 1)], axis=1)  # (S, 2F)
+    true = true_mean_draws(np.concatenate(mu, axis=1), scale, np.concatenate(y, axis=1), noise,
+                           wrap=np.repeat([False, True], F), rng=rng)
+    true = true.reshape(-1, 2, F).transpose(1, 0, 2)  # (2, S, F)
     fuu = np.exp(true[0] + 1j * true[1])[:, keep]
     f = f[keep]
     x0 = _x0("amplitude", label.below_mm_pp, f)
