@@ -7,7 +7,7 @@ import sys
 import numpy as np
 
 from ..core.errors import InputError
-from .options import quiet_option, parse_frequencies, scale_options, seed_value
+from .options import parse_frequencies, quiet_option, scale_options, seed_value
 
 
 __all__ = ["add_predict", "cmd_predict", "add_span", "cmd_span", "add_design", "cmd_design"]

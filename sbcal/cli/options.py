@@ -4,10 +4,11 @@ pipeline settings from the options."""
 from __future__ import annotations
 
 import argparse
+import warnings
 
 import numpy as np
 
-from ..core.errors import InputError
+from ..core.errors import InputError, InputWarning
 from ..core.workers import default_workers
 
 
@@ -26,16 +27,15 @@ class Parser(argparse.ArgumentParser):
 
 
 class _Deprecated(argparse.Action):
-    """An old spelling of an option: stores to the new one's ``dest`` and says so on stderr, once."""
+    """An old spelling of an option: stores to the new one's ``dest`` and says so in an :class:`InputWarning` (one
+    line, once: :func:`sbcal.cli.app.main` prints them)."""
 
     def __init__(self, option_strings, dest, new: str = "", **kw):
         self.new = new
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        import sys
-
-        print(f"sbcal: warning: {option_string} is deprecated (kept for one release): use {self.new}", file=sys.stderr)
+        warnings.warn(f"{option_string} is deprecated (kept for one release): use {self.new}", InputWarning, stacklevel=2)
         setattr(namespace, self.dest, values)
 
 

@@ -158,22 +158,24 @@ def _check_units(source, df: pd.DataFrame, where: _Where) -> None:
                           "mass": g["mass"].median().to_numpy()})
     bad = ((stats["amp"] < _LEAST_AMPLITUDE_MM_PP) | (stats["amp"] > _LARGEST_AMPLITUDE_MM_PP)
            | ((stats["phase"] > 0.5) & (stats["phase"] < 2 * np.pi + 0.1)) | (stats["mass"] < _LEAST_APPARENT_MASS_KG))
-    for _, row in stats[bad].sort_values("first").head(1).iterrows():
-        at = f"{source}: {where([int(row['first'])])[0]}"  # only on error: a CSV's line numbers cost a re-read
-        first = df.iloc[int(row["first"])]
-        test = f"{first['damper']} {first['test']}"
-        if row["amp"] < _LEAST_AMPLITUDE_MM_PP:
-            raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
-                             f"below any shaker test's {_LEAST_AMPLITUDE_MM_PP:g} mm: metres typed as millimetres?")
-        if row["amp"] > _LARGEST_AMPLITUDE_MM_PP:
-            raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
-                             f"above {_LARGEST_AMPLITUDE_MM_PP:g} mm: micrometres typed as millimetres?")
-        if 0.5 < row["phase"] < 2 * np.pi + 0.1:  # a damper's phase reaches 180 deg below its first resonance
-            raise InputError(f"{at}: column 'phase_deg': every phase of {test} lies within +-2 pi (largest "
-                             f"{row['phase']:.3g}): radians? sbcal reads degrees")
-        if row["mass"] < _LEAST_APPARENT_MASS_KG:
-            raise InputError(f"{at}: column 'stiffness_n_per_m': {test}'s stiffness over omega^2 is {1e3 * row['mass']:.3g} g "
-                             f"(median over its rows), a damper's moving mass is kilograms: kN/m or N/mm typed as N/m?")
+    if not bad.any():
+        return
+    row = stats[bad].sort_values("first").iloc[0]  # the first bad test in file order
+    at = f"{source}: {where([int(row['first'])])[0]}"  # only on error: a CSV's line numbers cost a re-read
+    first = df.iloc[int(row["first"])]
+    test = f"{first['damper']} {first['test']}"
+    if row["amp"] < _LEAST_AMPLITUDE_MM_PP:
+        raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
+                         f"below any shaker test's {_LEAST_AMPLITUDE_MM_PP:g} mm: metres typed as millimetres?")
+    if row["amp"] > _LARGEST_AMPLITUDE_MM_PP:
+        raise InputError(f"{at}: column 'amplitude_mm_pp': {test} is tested at {row['amp']:.3g} mm peak-to-peak, "
+                         f"above {_LARGEST_AMPLITUDE_MM_PP:g} mm: micrometres typed as millimetres?")
+    if 0.5 < row["phase"] < 2 * np.pi + 0.1:  # a damper's phase reaches 180 deg below its first resonance
+        raise InputError(f"{at}: column 'phase_deg': every phase of {test} lies within +-2 pi (largest "
+                         f"{row['phase']:.3g}): radians? sbcal reads degrees")
+    if row["mass"] < _LEAST_APPARENT_MASS_KG:
+        raise InputError(f"{at}: column 'stiffness_n_per_m': {test}'s stiffness over omega^2 is {1e3 * row['mass']:.3g} g "
+                         f"(median over its rows), a damper's moving mass is kilograms: kN/m or N/mm typed as N/m?")
 
 
 def _validated(source, df: pd.DataFrame, where: _Where, explain: _Explain) -> pd.DataFrame:

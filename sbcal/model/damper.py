@@ -120,7 +120,7 @@ _PLAUSIBLE = {
     "ej_static": (0.05, 1e5, "N m^2", "the messenger's full-stick rigidity"),
 }
 
-_TABLES = ("clamp", "mass1", "mass2", "cable")
+_TABLES = tuple(dict.fromkeys(table for table, *_ in _FIELDS))  # clamp, mass1, mass2, cable
 
 
 def _plausible(path: str, key: str, field: str, x: float) -> float:
