@@ -9,7 +9,7 @@ Subpackages by concern, each importing only those below it: ``core`` (errors, fi
 
 from .core.errors import InputError
 from .core.version import __version__
-from .model.damper import Damper, load_damper
+from .model.damper import Damper, load_damper, resolve_damper
 from .model.fem import PARAMETER_NAMES, STANDARD_GRID_HZ, clamp_impedance, dynamic_stiffness, natural_frequencies
 
 
@@ -23,4 +23,5 @@ __all__ = [
     "dynamic_stiffness",
     "load_damper",
     "natural_frequencies",
+    "resolve_damper",
 ]
