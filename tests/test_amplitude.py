@@ -1,3 +1,5 @@
+import warnings
+
 import numpy as np
 import pytest
 from scipy.stats import binom
@@ -50,7 +52,13 @@ def test_table_mode_recovers_known_exponent(tmp_path, capsys):
     ej = 12.5 * AMPS ** -0.37
     t.write_text("amplitude_mm_pp,ej_nm2\n" + "".join(f"{a},{e:.6g}\n" for a, e in zip(AMPS, ej)))
     out = tmp_path / "m.json"
-    assert main(["map", "--table", str(t), "--json", str(out)]) == 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["map", "--table", str(t), "--json", str(out), "--plot", str(tmp_path / "m.png")]) == 0
+    # a table has no loss factor: one panel (EJ with the law's band), no empty panel, no legend warning
+    assert not [w for w in caught if "No artists" in str(w.message)]
+    width = int.from_bytes((tmp_path / "m.png").read_bytes()[16:20], "big")  # the PNG header's IHDR width
+    assert width < 800, width  # 6.5 in at 110 dpi; two panels are 11 in
     import json
 
     d = json.loads(out.read_text())

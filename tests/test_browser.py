@@ -1,5 +1,5 @@
-"""The report in real headless Chromium: loads from disk, no console errors, every image loaded, the
-navigation works when clicked.
+"""The report in real headless Chromium: loads from disk alone (index.html copied away from its folder), no
+console errors, every image loaded, the navigation works when clicked.
 
 Driven by Playwright for Python with the system's Chromium (``executable_path``: no browser download).
 The screenshot is saved to ``$SBCAL_ARTIFACTS`` (default ``artifacts/``) as ``report.png``. Under CI
@@ -39,12 +39,15 @@ def page():
 def test_report_in_headless_chromium(run_store, tmp_path, page):  # noqa: F811
     out = tmp_path / "rep"
     assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0
+    alone = tmp_path / "mailed" / "report.html"  # the page without its folder: it carries its figures
+    alone.parent.mkdir()
+    shutil.copy(out / "index.html", alone)
     errors = []
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.on("requestfailed", lambda r: errors.append(f"{r.url}: {r.failure}"))
-    page.goto((out / "index.html").as_uri(), wait_until="load")
-    images = page.eval_on_selector_all("img", "els => els.map(i => [i.getAttribute('src'), i.complete, i.naturalWidth])")
+    page.goto(alone.as_uri(), wait_until="load")
+    images = page.eval_on_selector_all("img", "els => els.map(i => [i.getAttribute('data-src'), i.complete, i.naturalWidth])")
     art = Path(os.environ.get("SBCAL_ARTIFACTS", "artifacts"))
     art.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(art / "report.png"))

@@ -185,7 +185,7 @@ def test_the_report_draws_the_stored_distortion(fit, plain, tmp_path, monkeypatc
     monkeypatch.setattr(HarmonicBalance, "state", solve)
     page = build_report(runs, tmp_path / "rep").read_text()
     assert "Harmonic distortion the cable law predicts" in page
-    assert 'src="figures/damper1_distortion.png"' in page
+    assert 'data-src="figures/damper1_distortion.png"' in page
     assert (tmp_path / "rep" / "figures" / "damper1_distortion.png").is_file()
     big = s["harmonics"]["largest"]["distortion"]
     assert f"dry cable: largest {100 * big['value']:.1f} % at {big['test']} {big['freq_hz']:g} Hz" in page

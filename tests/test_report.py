@@ -1,5 +1,6 @@
 """The report renders from a small run store: sections, tables, every referenced image exists."""
 
+import base64
 import re
 from html.parser import HTMLParser
 
@@ -21,12 +22,13 @@ FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generation
 class _Refs(HTMLParser):
     def __init__(self):
         super().__init__()
-        self.imgs, self.headings, self.tables = [], [], 0
+        self.imgs, self.data, self.headings, self.tables = [], [], [], 0
         self._h = None
 
     def handle_starttag(self, tag, attrs):
-        if tag == "img":
-            self.imgs.append(dict(attrs)["src"])
+        if tag == "img":  # the figure's name (data-src) and the figure itself, inside the page
+            self.imgs.append(dict(attrs)["data-src"])
+            self.data.append(dict(attrs)["src"])
         if tag == "table":
             self.tables += 1
         if tag in ("h2", "h3"):
@@ -81,9 +83,12 @@ def test_report_structure(run_store, tmp_path, capsys):
     assert re.search(r"2-2: not sampled yet", page)
     assert p.tables >= 5  # quality, three parameter tables, map, provenance
     assert len(p.imgs) >= 3 * 4 + 2
-    for src in p.imgs:
-        assert not src.startswith(("http:", "https:", "/")), src  # self-contained, relative
-        assert (out / src).is_file() and (out / src).stat().st_size > 1000, src
+    assert len(p.data) == len(p.imgs)
+    for name, src in zip(p.imgs, p.data):  # every figure inside the page: it travels alone
+        assert src.startswith("data:image/png;base64,"), name
+        png = base64.b64decode(src.split(",", 1)[1])
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 1000, name
+        assert (out / name).read_bytes() == png, name  # ... and beside it, for slides
     assert "EJ" in page and "R-hat" in page
 
 
@@ -353,7 +358,7 @@ def test_the_span_section_shows_the_life(full_report):
             "22.9 MPa (limit 8.73 MPa)") in damped
     assert "hold the calibration&#39;s model error" in damped and "1 mm p-p 1.1 % / 0.6°" in damped
     assert "(10 %: 0.724)" in damped
-    assert '<img src="figures/life_drake-damper1-dry.png"' in damped
+    assert 'data-src="figures/life_drake-damper1-dry.png"' in damped
     assert (out / "figures" / "life_drake-damper1-dry.png").is_file()
     bare = _section(page, "span-drake-bare", "<h3")
     assert "<td>no damper</td><td>unlimited</td><td>0</td>" in bare and "with dampers" not in bare
@@ -376,7 +381,7 @@ def test_the_design_section(full_report):
     assert "2 designs bend the arms beyond the calibrated curvature" in g
     assert "total_mass_kg ≤ 5" in g
     assert (out / "files" / "design_drake-damper1-damper1-dry_best.toml").read_text() == 'name = "damper1-design"\n'
-    assert 'href="files/design_drake-damper1-damper1-dry_best.toml"' in page
+    assert 'data-src="files/design_drake-damper1-damper1-dry_best.toml" download="design_drake-damper1-damper1-dry_best.toml"' in page
     assert "figures/design_drake-damper1-damper1-dry.png" in p.imgs
 
 

@@ -181,8 +181,8 @@ def cmd_map(args) -> int:
     from ..inference.amplitude import amplitude_map, map_from_store, points_from_table, stored_maps
 
     if args.table:
-        doc, _ = amplitude_map(points_from_table(args.table), seed=args.seed)
-        docs = {"table": doc}
+        doc, fits = amplitude_map(points_from_table(args.table), seed=args.seed)
+        docs = {"table": dict(doc, draws={law: f.draws for law, f in fits.items()})}  # the draws for --plot's band
         key = "table"
     else:
         from ..inference.store import dampers
@@ -249,7 +249,7 @@ def _map_problems(doc) -> str:
 
 def add_report(sub):
     p = sub.add_parser("report", help="write an HTML summary of the stored runs",
-                       description="Write a self-contained static HTML report (index.html + figures/) of what the "
+                       description="Write a self-contained static HTML report (one index.html, its figures inside; figures/ beside it) of what the "
                                    "run store holds; it recomputes nothing.")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="report directory (default report/)")

@@ -245,7 +245,7 @@ def amplitude_map(ej_points, beta_points=(), *, seed=0, ej_static: float | None 
     """Fit both laws to EJ and the power law to beta (each fit's stream keyed by its name under ``seed``:
     an int, or a damper's map stream from :func:`map_from_store`).
 
-    Returns ``(doc, fits)``: ``doc`` is the ``sbcal map --json`` document, ``fits`` the two
+    Returns ``(doc, fits)``: ``doc`` is the ``sbcal map --json`` document, ``fits`` the two (by law)
     :class:`LawFit` of EJ (for plots).
 
     Returns ``{"powerlaw": {"k": [median, lo, hi], "n": [...], "scatter": [...], "elpd_loo", "elpd_se",
@@ -361,10 +361,12 @@ def law_curve(law: str, draws: dict, a) -> np.ndarray:
 
 def plot_map(docs: dict, path) -> None:
     """EJ and beta versus amplitude for every damper (maps as :func:`stored_maps` gives them), with the
-    power law's 90 % band; a PNG."""
+    power law's 90 % band; a PNG. Without a loss factor anywhere (a ``--table`` of EJ only) the EJ panel alone."""
     plt = pyplot()
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    with_beta = any(doc.get("beta", {}).get("tests") for doc in docs.values())
+    fig, axes = plt.subplots(1, 2 if with_beta else 1, figsize=(11, 4.2) if with_beta else (6.5, 4.2), squeeze=False)
+    axes = axes[0]
     grid = np.geomspace(0.08, 2.5, 100)
     for i, (name, doc) in enumerate(docs.items()):
         color = f"C{i % 10}"  # every damper of the store, however many
@@ -377,7 +379,7 @@ def plot_map(docs: dict, path) -> None:
         a = np.array([x["amplitude_mm_pp"] for x in t])
         v = np.array([x["ej_nm2"] for x in t])
         axes[0].errorbar(a, v[:, 0], yerr=[v[:, 0] - v[:, 1], v[:, 2] - v[:, 0]], fmt="o", color=color, ms=4,
-                         label=f"{name}: per-test posterior (median, 90 %)")
+                         label=f"{name}: per-test EJ (median, 90 %)")
         for x in doc.get("excluded", []):
             if x["amplitude_mm_pp"] is not None:
                 axes[0].plot(x["amplitude_mm_pp"], x["ej_nm2"][0], "x", color=color, ms=6)
@@ -389,7 +391,8 @@ def plot_map(docs: dict, path) -> None:
                              label=name)
     axes[0].set(xscale="log", yscale="log", xlabel="base amplitude A [mm p-p]", ylabel="EJ [N m$^2$]",
                 title="Flexural rigidity (x: excluded tests)")
-    axes[1].set(xscale="log", xlabel="base amplitude A [mm p-p]", ylabel="loss factor beta [-]", title="Loss factor")
+    if with_beta:
+        axes[1].set(xscale="log", xlabel="base amplitude A [mm p-p]", ylabel="loss factor beta [-]", title="Loss factor")
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)

@@ -13,7 +13,6 @@ and prior boxes, converged), fits the population by reweighting them
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 

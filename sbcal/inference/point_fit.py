@@ -17,7 +17,10 @@ from scipy.optimize import differential_evolution
 from .likelihood import TestLikelihood
 
 
-__all__ = ["PointFit", "fit_thesis_cost"]
+__all__ = ["EDGE", "PointFit", "fit_thesis_cost"]
+
+EDGE = 1e-3
+"""A best value this close to a bound, as a fraction of the box's width, sits on the bound."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +39,9 @@ class PointFit:
         Forward-model evaluations (parameter sets).
     generations : int
     wall_s : float
+    on_bound : tuple of str
+        Parameters whose best value lies on an edge of the search box (within :data:`EDGE` of its
+        width, in the searched coordinate): the prior's bounds, not the data, set them.
     """
 
     names: tuple
@@ -44,10 +50,12 @@ class PointFit:
     n_evaluations: int
     generations: int
     wall_s: float
+    on_bound: tuple = ()
 
     def as_dict(self) -> dict:
         return {"parameters": dict(zip(self.names, map(float, self.x))), "cost": self.cost,
-                "n_evaluations": self.n_evaluations, "generations": self.generations, "wall_s": self.wall_s}
+                "n_evaluations": self.n_evaluations, "generations": self.generations, "wall_s": self.wall_s,
+                "on_bound": list(self.on_bound)}
 
 
 def fit_thesis_cost(like: TestLikelihood, *, seed, population: int = 60, generations: int = 300, tol: float = 1e-6,
@@ -97,5 +105,7 @@ def fit_thesis_cost(like: TestLikelihood, *, seed, population: int = 60, generat
         tol=tol, seed=seed, polish=polish, vectorized=True, updating="deferred", init="sobol", callback=callback,
     )
     x = np.where(log_scale, np.exp(res.x), res.x)
+    edge = EDGE * (hi - lo)
+    on_bound = tuple(n for n, z, a, b, e in zip(names, res.x, lo, hi, edge) if z - a <= e or b - z <= e)
     return PointFit(names=names, x=x, cost=float(res.fun), n_evaluations=count[0],
-                    generations=int(res.nit), wall_s=time.perf_counter() - t0)
+                    generations=int(res.nit), wall_s=time.perf_counter() - t0, on_bound=on_bound)
