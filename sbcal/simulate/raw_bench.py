@@ -43,8 +43,9 @@ from ..core.progress import progress_bar
 from ..data.bench import BENCH_COLUMNS, curves_to_frame
 from ..model.damper import Damper
 from ..model.fem import STANDARD_GRID_HZ
-from .virtual_bench import (_HARMONICS, RAMP_PERIODS, BenchConfig, _defaults, _reclamping, _table_and_channels,
-                            integrate_slip, slip_law_params, test_amplitude)
+from .effects import BENCH_HARMONICS
+from .virtual_bench import (RAMP_PERIODS, BenchConfig, integrate_slip, reclamping, slip_law_params, table_and_channels,
+                            test_amplitude, with_defaults)
 
 
 __all__ = [
@@ -136,9 +137,9 @@ def _check(config: BenchConfig, f, rate_hz, hold_periods, pause_s, noise, offset
                          "has no time-domain form)")
     if f.ndim != 1 or f.size == 0 or not np.all(np.isfinite(f) & (f > 0)):
         raise InputError("freq_hz: expected finite frequencies > 0 [Hz], shape (n_freq,)")
-    need = 2 * _HARMONICS * f.max()
+    need = 2 * BENCH_HARMONICS * f.max()
     if not (math.isfinite(rate_hz) and rate_hz > need):
-        raise InputError(f"rate_hz: expected more than 2 x {_HARMONICS} harmonics x the highest line = {need:g} Hz, "
+        raise InputError(f"rate_hz: expected more than 2 x {BENCH_HARMONICS} harmonics x the highest line = {need:g} Hz, "
                          f"got {rate_hz!r}")
     if not isinstance(hold_periods, (int, np.integer)) or isinstance(hold_periods, bool) or hold_periods < 1:
         raise InputError(f"hold_periods: expected an integer >= 1, got {hold_periods!r}")
@@ -211,7 +212,7 @@ def _held_harmonics(r, periods):
     line's last whole period, the one the hold repeats (a rectangular DFT, as ``time_response`` takes its
     windows; a period's phase times are ``theta = 2 pi m / steps``, m = 1 .. steps, modulo 2 pi)."""
     steps = r.steps_per_period
-    phasor = np.exp(-2j * np.pi * np.outer(np.arange(1, _HARMONICS + 1), np.arange(1, steps + 1)) / steps)
+    phasor = np.exp(-2j * np.pi * np.outer(np.arange(1, BENCH_HARMONICS + 1), np.arange(1, steps + 1)) / steps)
     rows = [(p - 1) * steps + np.arange(steps) for p in periods]
     force = np.stack([r.force[0, k, j] for k, j in enumerate(rows)])
     base = np.stack([r.base[0, k, j] for k, j in enumerate(rows)])
@@ -306,7 +307,7 @@ def _one_run(damper, config, f, amp, run, ej_scale, chi0_scale, number, test, rn
     channels, scales = measure(channels, rng, noise=noise, offsets=offsets, adc_bits=adc_bits, full_scale=full_scale)
     channels["Drive frequency"], channels["Drive amplitude"] = drive_f, drive_a
     harmonics, x1 = _held_harmonics(r, periods)
-    truth = _table_and_channels(harmonics[None, :, 0] / x1, omega[None, :], config.effects)[0]
+    truth = table_and_channels(harmonics[None, :, 0] / x1, omega[None, :], config.effects)[0]
     distortion = np.sqrt((np.abs(harmonics[:, 1:]) ** 2).sum(axis=1)) / np.abs(truth * x1)
     properties = {"damper": damper.name, "test": test, "run": int(number)}
     if np.all(amp == amp[0]):
@@ -376,7 +377,7 @@ def iter_raw(damper: Damper, config: BenchConfig, test: str, *, rng: np.random.G
     f = STANDARD_GRID_HZ.copy() if freq_hz is None else np.atleast_1d(np.asarray(freq_hz, dtype=float))
     _check(config, f, float(rate_hz), hold_periods, pause_s, noise, offsets, adc_bits, full_scale, spline_degree)
     amp = test_amplitude(test, f)
-    runs, ej_scale, chi0_scale = _reclamping(damper, config, _defaults(damper, config.params), rng)
+    runs, ej_scale, chi0_scale = reclamping(damper, config, with_defaults(damper, config.params), rng)
     with progress_bar(progress, total=config.runs, unit="run") as bar:
         for i in range(config.runs):
             run = {k: float(np.asarray(v, dtype=float).reshape(-1)[i if np.size(v) > 1 else 0])
