@@ -43,15 +43,17 @@ def test_first_harmonic_alone_is_the_describing_function(damper1, name, params, 
 
 
 def test_several_harmonics_distortion_and_convergence_flags(damper1):
-    """At 2 mm a slipping cable's force carries higher harmonics; every line is either converged
-    (a small final step) or flagged, never silently returned."""
+    """At 2 mm a slipping cable's force carries higher harmonics. Every line converges (measured: 10 of 10,
+    final steps 3e-13 to 9e-10 against the 1e-9 tolerance); a solve stopped short (3 Newton steps, where
+    every step is still 1e-3 to 0.2) flags every line instead of returning it silently."""
     model = CableModel(law=law_for("iwan"))
     lines = G[::4]
     st = HarmonicBalance(model, harmonics=3).state(damper1, lines, 2.0, **IWAN)
     small = HarmonicBalance(model, harmonics=3).state(damper1, lines, 0.02, **IWAN)
     ok = st.converged[0]
-    assert ok.sum() >= 1
-    assert np.all(st.residual[0, ok] < 1e-9) and np.all(st.residual[0, ~ok] >= 1e-9)
+    assert ok.all() and np.all(st.residual[0] < 1e-9)
+    short = HarmonicBalance(model, harmonics=3, max_iter=3).state(damper1, lines, 2.0, **IWAN)
+    assert not short.converged.any() and np.all(short.residual >= 1e-9)
     # deep in micro-slip the force is nearly a sine and the describing function nearly exact; at 2 mm
     # the higher harmonics move the first (Iwan's micro-slip is self-similar: its share only shrinks
     # as the slip part's, ~ chi^(c+1))

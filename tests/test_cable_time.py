@@ -184,21 +184,26 @@ def test_linear_cable_is_the_first_harmonic_model(damper1):
     assert np.all(rest.distortion < 1e-4)
 
 
-@pytest.mark.parametrize("steps", [128, 256])
-def test_plain_newmark_error_is_the_trapezoidal_frequency_error(damper1, steps):
+def test_plain_newmark_error_is_the_trapezoidal_frequency_error(damper1):
     # without pre-warping, the trapezoidal rule's steady response to exp(i theta) is the exact one at
-    # omega (1 + eps), eps = dtheta^2 / 12 (its period error): 5.0e-5 at 256 steps, 2.0e-4 at 128.
-    # The time response is off the model by no more than the model's own change over that shift
-    # (measured 0.4-1.0 of it; the inertia of the force is taken at omega, not omega (1 + eps))
+    # omega (1 + eps), eps = dtheta^2 / 12 (its period error): 2.0e-4 at 128 steps, 5.0e-5 at 256. So the
+    # time response's error is second order in the step (a quarter at twice the steps, line by line),
+    # and of the size of the model's own change over that shift: measured 0.43-1.017 of it, the same at
+    # 128, 256 and 512 steps to 1e-3 (a property of the model, not noise: the force's inertia is taken at
+    # omega, not omega (1 + eps), which moves it either way by up to 2 %)
     f = G[::6]
     model = CableModel(None)
-    eps = (2 * np.pi / steps) ** 2 / 12
     ref = model.dynamic_stiffness(damper1, f, 1.0, **LINEAR)
-    shift = np.abs(model.dynamic_stiffness(damper1, f * (1 + eps), 1.0, **LINEAR) / ref - 1)
-    got = time_response(model, damper1, f, 1.0, steps_per_period=steps, prewarp=False, start="model", **LINEAR)
-    err = np.abs(got.f_uu / ref - 1)
-    print(f"{steps} steps: eps {eps:.1e}, error {err.max():.1e}, the model's change over eps {shift.max():.1e}")
-    assert np.all(err <= 1.05 * shift + 1e-7)
+    err, ratio = {}, {}
+    for steps in (128, 256):
+        eps = (2 * np.pi / steps) ** 2 / 12
+        shift = np.abs(model.dynamic_stiffness(damper1, f * (1 + eps), 1.0, **LINEAR) / ref - 1)
+        got = time_response(model, damper1, f, 1.0, steps_per_period=steps, prewarp=False, start="model", **LINEAR)
+        err[steps] = np.abs(got.f_uu / ref - 1)
+        ratio[steps] = err[steps] / shift
+    assert np.allclose(err[256] / err[128], 0.25, rtol=0.02)  # second order in the step
+    assert np.allclose(ratio[256], ratio[128], atol=2e-3)
+    assert 0.4 < ratio[256].min() and ratio[256].max() < 1.03
 
 
 @pytest.mark.parametrize("name, params, lines", [
@@ -324,16 +329,15 @@ def test_bad_model_frequency_and_law_input_is_one_line(damper1):
 @pytest.mark.slow
 @pytest.mark.parametrize("name, params", [("iwan5", IWAN5_2MM), ("bouc_wen", BW_2MM),
                                           ("iwan5_zoned", dict(IWAN5_2MM, **SWAGED))])
-def test_two_mm_sweep_timing(damper1, name, params):
-    # the virtual bench's sweep: 37 lines, both arms, from rest
-    import time
+def test_two_mm_sweep_from_rest_settles_at_every_line(damper1, name, params):
+    # the virtual bench's sweep: 37 lines, both arms, from rest, in gross slip (distortion up to 18-26 %):
+    # every line settles and converges. The first harmonic departs from the describing-function model by
+    # up to 11-17 % (measured; near the first resonances, where a line's history matters, not only where the
+    # force is most distorted): the 25 % below guards against a stepper that drifts, it is no accuracy claim
+    # (the time stepper's accuracy is the micro-slip and Newmark tests')
     model = CableModel(law_for(name))
-    model.dynamic_stiffness(damper1, G[:2], 2.0, **params)  # tables built once per process
-    t0 = time.perf_counter()
     r = time_response(model, damper1, G, 2.0, **params)
-    seconds = time.perf_counter() - t0
     ref = model.dynamic_stiffness(damper1, G, 2.0, **params)
     err = np.abs(r.f_uu / ref - 1)
-    print(f"{name} 2 mm, {G.size} lines: {seconds:.1f} s, {r.periods.sum()} periods (most {r.periods.max()}), "
-          f"distortion up to {r.distortion.max():.3f}, |f_uu / model - 1| up to {err.max():.3f} at {G[err.argmax()]} Hz")
-    assert r.settled.all() and r.converged.all()
+    assert r.settled.all() and r.converged.all() and np.isfinite(r.f_uu).all()
+    assert err.max() < 0.25
