@@ -411,9 +411,11 @@ def run(bench, dampers, *, store, report_dir, settings: Settings, executor=None,
         say(f"{name}: sample {t}: {status}{flag}")
     if until == "sample":
         return None
+    from .diagnosis.remainder import headline
+
     for name, (doc, status) in diagnose_dampers(data, dampers, store=store, settings=settings, executor=executor,
                                                 command=command, progress=progress).items():
-        say(f"{name}: diagnose: {status}; verdict {doc['verdict']} — {doc['remainder']['words']}")
+        say(f"{name}: diagnose: {status}; verdict {doc['verdict']} — {headline(doc['remainder'])}")
     if until == "diagnose":
         return None
     for damper in dampers:

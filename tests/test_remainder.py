@@ -16,8 +16,8 @@ from sbcal.cli import main
 from sbcal.data.bench import write_bench
 from sbcal.diagnosis.diagnose import DiagnoseConfig
 from sbcal.diagnosis.locate import _bands
-from sbcal.diagnosis.remainder import remainder
-from sbcal.inference.checks import discrepancy, predictive_check, qualifier
+from sbcal.diagnosis.remainder import headline, remainder, shown_qualifier
+from sbcal.inference.checks import discrepancy, materiality, predictive_check, qualifier
 from sbcal.inference.likelihood import TestLikelihood
 from sbcal.inference.priors import extension_prior
 from sbcal.model.damper import resolve_damper
@@ -180,3 +180,26 @@ def test_a_stored_cable_judges_itself_as_the_diagnosis_does(tmp_path):
     fit = _fit(tmp_path)
     post = _posterior(FitJob(("strand_slip", "dry", "iwan5"), fit.like, None, DiagnoseConfig(), fit.tests), fit.result)
     assert _remainder(fit, (post["mu_mean"], post["mu_var"])) == _remainder(fit)
+
+
+@pytest.mark.parametrize("off, material", [((0.05, np.radians(2.0)), True), ((0.008, np.radians(0.3)), False)])
+def test_a_partial_remainder_says_whether_it_matters(damper, off, material):
+    """Both offsets at 1 mm are found (partial), with 16 runs of 2 % and 1.1 deg noise; 5 % and 2 deg is
+    above one run's noise (material), 0.8 % and 0.3 deg below it: 'complete within' its size, first."""
+    likes, means = _tests(damper, np.random.default_rng(3), [(0, 0), off])
+    var = [np.zeros((2, F.size))] * 2
+    c = predictive_check(likes, means, var)
+    assert qualifier(c) == "partial"
+    m = materiality(discrepancy(likes, means, var, partial=True), likes)
+    assert m["material"] is material
+    assert m["run_noise_pct"] == pytest.approx(100 * np.expm1(SIGMA), rel=1e-9)
+    assert m["within_pct"] == pytest.approx(100 * np.expm1(off[0]), rel=0.25)
+    assert m["within_deg"] == pytest.approx(np.degrees(off[1]), rel=0.3)
+    rem = {"qualifier": "partial", "words": "partial: x leaves 1% of the misfit over chance", "materiality": m}
+    if material:
+        assert m["words"].startswith("partial, material: up to 5") and shown_qualifier(rem) == "partial"
+        assert headline(rem).startswith("partial: x leaves") and "material: up to" in headline(rem)
+    else:
+        size = f"complete within {m['within_pct']:.2g} % and {m['within_deg']:.2g} deg"
+        assert m["words"].startswith(size + ": ") and shown_qualifier(rem) == size
+        assert headline(rem).startswith("complete within") and "Statistically, partial: x leaves" in headline(rem)

@@ -162,7 +162,10 @@ def test_report_shows_the_diagnosis(run_store, diagnosis_doc, tmp_path, capsys):
 
     assert diagnosis_doc["qualifier"] in ("complete", "partial")
     q, words = diagnosis_doc["qualifier"], diagnosis_doc["remainder"]["words"]
-    assert words.startswith(f"{q}: ") and f"<b>What is left: {q}</b> — {escape(words[len(q) + 2:])}" in page
+    size = diagnosis_doc["remainder"].get("materiality")
+    shown = size["words"].split(":", 1)[0] if size and not size["material"] else q  # "complete within ..."
+    assert words.startswith(f"{q}: ") and f"<b>What is left: {escape(shown)}</b> — " in page
+    assert escape(words[len(q) + 2:]) in page
     assert page.index("What is left") < page.index("Rule: ")
     assert "figures/damper1_diagnosis.png" in p.imgs and (out / "figures/damper1_diagnosis.png").is_file()
     # a hand-edited diagnosis with a malformed remainder: one line naming the file and the keys, exit 2

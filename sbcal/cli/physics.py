@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..diagnosis.remainder import headline
 from ..inference.store import cable_dir, diagnose_path
 from .options import quiet_option, bench_for, cleaned_for, damper_options, scale_options, seed_value, settings_from, workers_option
 
@@ -67,7 +68,7 @@ def cmd_diagnose(args) -> int:
 
         write_bench(curves_frame(result), args.curves)
     print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else "")
-          + f" — {result['remainder']['words']}")
+          + f" — {headline(result['remainder'])}")
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
     if len(result["bands"]) > 12:
@@ -149,8 +150,9 @@ def cmd_cable(args) -> int:
         print(f"{damper.name} cable {state} ({best}, {len(fit.tests)} tests): {vals}; R-hat max {s['r_hat_max']:.3f}, "
               f"ESS min {min(s['ess_bulk_min'], s['ess_tail_min']):.0f}, {s['wall_s']:.0f} s{flag}")
         r, d = s["remainder"], s["discrepancy"]
+        size = f"{r['materiality']['words']}; " if r.get("materiality") else ""
         left = ("consistent with the noise: no model discrepancy" if r["qualifier"] == "complete" else
-                "model discrepancy carried by predict and span (sd ln|f| / phase): " + ", ".join(
+                size + "model discrepancy carried by predict and span (sd ln|f| / phase): " + ", ".join(
                     f"{a:g} mm {m:.3f} / {p:.2f} deg" for a, m, p in
                     zip(d["amplitude_mm_pp"], d["logmag_sd"], d["phase_sd_deg"])))
         print(f"  what the law leaves: {r['qualifier']} (rms z {r['rms_z']:.2f}, {r['lines_off']} of {r['n_lines']} "

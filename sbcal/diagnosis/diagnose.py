@@ -39,7 +39,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.bench import rows_digest
 from ..inference.cable_fit import SECONDARY, CableFit, store_cable
-from ..inference.checks import discrepancy, predictive_check, qualifier
+from ..inference.checks import discrepancy, materiality, predictive_check, qualifier
 from ..inference.runs import versions
 from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
@@ -433,6 +433,8 @@ def _what_is_left(verdict, case: _Case, *, base_check, base_mean, bands, ranking
                     bands=_bands(tests, likes, c.z, c.thresholds), tried=(secondary or {}).get("ranking", []),
                     config=case.config, explained_by=added, screen=(secondary or {}).get("screen"))
     disc = discrepancy(likes, [mean[t] for t in tests], [var[t] for t in tests], partial=rem["qualifier"] == "partial")
+    if rem["qualifier"] == "partial":  # is it material? (docs/diagnose.md, "Complete within")
+        rem = dict(rem, materiality=materiality(disc, likes))
     level = dict(zip(disc["amplitude_mm_pp"], zip(disc["logmag_sd"], np.radians(disc["phase_sd_deg"]))))
     sd = {}
     for t, lk in zip(tests, likes):  # the discrepancy at each line's amplitude (zero where it has none)

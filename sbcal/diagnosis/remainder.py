@@ -9,7 +9,7 @@ import numpy as np
 from ..inference.checks import qualifier
 
 
-__all__ = []
+__all__ = ["headline", "remainder", "shown_qualifier"]
 
 _PEAK_REACH = 1  # lines: a band this close to a resonance of the model is "near" it
 
@@ -150,3 +150,25 @@ def remainder(model: str | None, check, base_check, *, tests, likes, model_mean,
             if model is not None else f"the misfit ({numbers}) {spread}{most}")
     out["words"] = f"{head}; not explained by any modelled effect ({_tried(tried, screen)})"
     return out
+
+
+def headline(rem: dict) -> str:
+    """The remainder's sentence led by its size when it has one (``materiality``,
+    :func:`sbcal.inference.checks.materiality`): ``complete within 0.5 % and 0.3 deg: ... Statistically:
+    partial: ...``, or the ``partial`` sentence with its size; else ``words`` as it is."""
+    m = rem.get("materiality")
+    if not m:
+        return rem["words"]
+    if m["material"]:
+        return f"{rem['words']} ({m['words'].removeprefix('partial, ')})"
+    return f"{m['words']}. Statistically, {rem['words']}"
+
+
+def shown_qualifier(rem: dict | None) -> str | None:
+    """The qualifier a reader sees: ``complete within X % and Y deg`` for an immaterial ``partial``."""
+    if not rem:
+        return None
+    m = rem.get("materiality")
+    if m and not m["material"]:
+        return m["words"].split(":", 1)[0]
+    return rem.get("qualifier")

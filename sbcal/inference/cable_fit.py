@@ -38,7 +38,7 @@ from ..model.damper import Damper
 from ..model.hysteresis import FITTED_LAWS, law_for, zoned
 from ..model.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
 from .calibrate import likelihood_for
-from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, predictive_check, qualifier
+from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, materiality, predictive_check, qualifier
 from .distortion import predicted_distortion
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
@@ -448,7 +448,10 @@ def _remainder(fit: CableFit, curves=None) -> tuple[dict, dict]:
     word = qualifier(check, GLOBAL_ALPHA)
     remainder = {"qualifier": word, "rms_z": check.rms_z, "lines_off": check.lines_off, "n_lines": check.n_lines,
                  "global": check.global_, "alpha": ALPHA, "global_alpha": GLOBAL_ALPHA}
-    return remainder, discrepancy(like.likes, mean, var, partial=word == "partial")
+    disc = discrepancy(like.likes, mean, var, partial=word == "partial")
+    if word == "partial":  # is it material? (docs/diagnose.md, "Complete within")
+        remainder["materiality"] = materiality(disc, like.likes)
+    return remainder, disc
 
 
 def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None = None, curves=None) -> dict:

@@ -15,7 +15,8 @@ import numpy as np
 from scipy import stats
 
 
-__all__ = ["ALPHA", "GLOBAL_ALPHA", "Check", "curve_moments", "predictive_check", "qualifier", "discrepancy"]
+__all__ = ["ALPHA", "GLOBAL_ALPHA", "Check", "curve_moments", "predictive_check", "qualifier", "discrepancy",
+           "materiality"]
 
 ALPHA = 0.05  # family-wise false-alarm rate of the per-line check, over all lines of all tests
 GLOBAL_ALPHA = 0.01  # false-alarm rate of the global check of the residual as a whole
@@ -163,3 +164,40 @@ def discrepancy(likes, mu_mean, mu_var, *, partial: bool) -> dict:
             sd[:, k] = np.sqrt(np.maximum(r2[:, at].mean(axis=1) - noise[:, at].mean(axis=1), 0.0))
     return {"amplitude_mm_pp": levels.tolist(), "logmag_sd": sd[0].tolist(), "phase_sd_deg": np.degrees(sd[1]).tolist(),
             "partial": bool(partial)}
+
+
+def materiality(disc: dict, likes) -> dict:
+    """Does what a ``partial`` model leaves matter to a user? Its discrepancy beside one run's noise.
+
+    ``partial`` is a statistical statement: with many runs a remainder far below the bench's noise is
+    detectable. What a user acts on is its size, and that is the discrepancy (:func:`discrepancy`): the sd
+    per amplitude that ``sbcal predict`` and ``sbcal span`` add to their bands for the missing physics. The
+    remainder is **immaterial** when, at every amplitude, it is below the median per-run noise of the
+    lines in both quantities (``TestLikelihood.sigma``): smaller than the scatter of any single recording,
+    and so widening a prediction's band by less than that scatter. The statement is then ``complete within
+    X % and Y deg`` (X, Y the largest discrepancy sd); otherwise ``partial`` stands, with its size.
+
+    Parameters
+    ----------
+    disc : dict
+        :func:`discrepancy`'s (``logmag_sd`` [1], ``phase_sd_deg`` [deg] per amplitude).
+    likes : sequence of TestLikelihood
+        The tests it was estimated on.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``material`` (bool), ``within_pct`` and ``within_deg`` (the largest discrepancy sd, in % of
+        |f| and deg), ``run_noise_pct`` and ``run_noise_deg`` (one run's median noise), ``words``.
+    """
+    sigma = np.concatenate([lk.sigma for lk in likes], axis=1)  # (2, n_lines): one run's sd, ln|f| and phase [rad]
+    run_mag, run_deg = float(np.nanmedian(sigma[0])), float(np.degrees(np.nanmedian(sigma[1])))
+    mag, deg = max(disc["logmag_sd"], default=0.0), max(disc["phase_sd_deg"], default=0.0)
+    material = bool(mag > run_mag or deg > run_deg)
+    out = {"material": material, "within_pct": 100 * float(np.expm1(mag)), "within_deg": float(deg),
+           "run_noise_pct": 100 * float(np.expm1(run_mag)), "run_noise_deg": run_deg}
+    size = f"{out['within_pct']:.2g} % and {deg:.2g} deg"
+    noise = f"one run's noise, {out['run_noise_pct']:.2g} % and {run_deg:.2g} deg"
+    out["words"] = (f"partial, material: up to {size} beyond the noise, above {noise}" if material else
+                    f"complete within {size}: what is left is below {noise}, and predict and span carry it")
+    return out

@@ -56,6 +56,7 @@ def _diagnosis(path: Path, figs: Path):
     with its cable laws (``cable-<state>/``) when the verdict is strand slip."""
     import json
 
+    from ..diagnosis.remainder import shown_qualifier
     from ..inference.cable_fit import read_cable
 
     if not path.is_file():
@@ -67,6 +68,8 @@ def _diagnosis(path: Path, figs: Path):
                                     and word in ("complete", "partial", None)):
             raise InputError(f"{path}: keys 'qualifier', 'remainder': expected complete, partial or null, and an "
                              "object with its sentence 'words' (as sbcal diagnose writes them)")
+        doc["shown_qualifier"] = shown_qualifier(rem)
+        doc["left_words"] = _left_words(rem, word)
         doc["figure"] = diagnosis_figure(doc, figs / f"{doc['damper']}_diagnosis.png")
         if doc.get("curves") and doc["after"]["effect"] != "baseline":
             doc["curves_figure"] = curves_figure(doc, figs / f"{doc['damper']}_curves.png")
@@ -83,6 +86,20 @@ def _diagnosis(path: Path, figs: Path):
         if distorted:
             doc["distortion_figure"] = distortion_figure(distorted, figs / f"{doc['damper']}_distortion.png")
     return doc
+
+
+def _left_words(rem: dict | None, word: str | None) -> str:
+    """The remainder's sentence for "What is left", after its qualifier: the statistical sentence
+    without its ``partial: `` / ``complete: `` lead, and for an immaterial ``partial`` its size first."""
+    if not rem:
+        return ""
+    words = rem["words"][len(word) + 2:] if word and rem["words"].startswith(word + ": ") else rem["words"]
+    m = rem.get("materiality")
+    if m and not m["material"]:
+        return f"{m['words'].split(': ', 1)[1]}; statistically partial: {words}"
+    if m:
+        return f"{words} ({m['words'].removeprefix('partial, ')})"
+    return words
 
 
 def _predictions(damper_dir: Path, figs: Path) -> list:
