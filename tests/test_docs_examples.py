@@ -39,8 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 _FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
 _SCHEMA = re.compile(r"<!-- schema: (\w+) -->\s*$")
-# pages whose Python reads a calibration made by ``sbcal sample`` (the slow tier makes it)
-NEEDS_SAMPLES = {"calibration.md", "compare.md"}
+# pages whose Python reads a calibration made by ``sbcal sample`` (the slow tier makes it) or makes one
+NEEDS_SAMPLES = {"api.md", "calibration.md", "compare.md"}
 # documented commands parsed but not run (each is run by the test named)
 NOT_RUN = {
     "run": "the whole pipeline: 8 min (.ci/run runs it to its clean stage; tests/test_pipeline.py)",
