@@ -17,7 +17,7 @@ import numpy as np
 
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import default_bench_path, load_bench
-from sbcal.diagnosis.fits import DiagnoseConfig, _jobs, _run_fits
+from sbcal.diagnosis.fits import DiagnoseConfig, fit_jobs, run_fits
 from sbcal.inference.stats import loo, read_netcdf
 from sbcal.inference.store import POSTERIOR, run_dir
 from sbcal.model.damper import resolve_damper
@@ -38,8 +38,8 @@ def main(argv=None) -> int:
     tests = args.tests or data.tests(damper.name)
     config = DiagnoseConfig(workers=2)
     t0 = time.perf_counter()
-    jobs = _jobs("baseline", (), damper=damper, data=data, tests=tests, seed=0, config=config, prior_path=None)
-    fits = _run_fits(jobs, config, None)
+    jobs = fit_jobs("baseline", (), damper=damper, data=data, tests=tests, seed=0, config=config, prior_path=None)
+    fits = run_fits(jobs, config, None)
     print(f"{damper.name}: {len(jobs)} noise-only baseline fits in {time.perf_counter() - t0:.1f} s")
     lost = 0.0
     for job in jobs:

@@ -93,10 +93,10 @@ def inputs_digest(obj) -> str:
 
 def file_digest(path=None, bundled: str = "default.toml") -> str:
     """sha256 of a prior file (the bundled one when ``path`` is None)."""
-    from .inference.priors import _default_path
+    from .inference.priors import default_path
 
     if path is None:
-        return _sha(_default_path(bundled).read_bytes())
+        return _sha(default_path(bundled).read_bytes())
     try:
         return _sha(Path(path).read_bytes())
     except FileNotFoundError:

@@ -16,7 +16,7 @@ import numpy as np
 
 from sbcal.model.cable import CableModel
 from sbcal.model.cable_kernel import _START_RELAX, _START_STEPS, _STEP_CAP
-from sbcal.model.cable_sections import _TINY, _Arms
+from sbcal.model.cable_sections import TINY, Arms, Compliance
 
 
 class _Work:
@@ -43,7 +43,7 @@ class _Work:
 
 
 
-def _lookup(table: _Compliance, m2, row, out=None, log=True):
+def _lookup(table: Compliance, m2, row, out=None, log=True):
     """Section compliance and its slope from the table.
 
     ``m2 = |M|^2`` [(N m)^2], shape (..., b) (``log=False``: ``ln |M|^2`` already); ``row`` (b,)
@@ -158,7 +158,7 @@ class NumpyCableModel(CableModel):
     def _lookup_many(self, table, m2, row):
         return _lookup(table, m2, row)
 
-    def _sums(self, table, arms: _Arms, p0, p1):
+    def _sums(self, table, arms: Arms, p0, p1):
         """Section moments of K, dK/dy and (dK/dy) / |M|^2 against the weights ``w eta^k``.
 
         Returns (sk, sd, se): complex arrays of shape (3, b), (3, b), (5, b), row k holding the
@@ -180,7 +180,7 @@ class NumpyCableModel(CableModel):
         m2 += p1.real**2 + p1.imag**2
         kd = _Work.get("kd", (q, 4, b))  # Kr, Ki, Dr, Di: one block for one matrix product
         _lookup(table, m2, arms.zrow if zoned else arms.row, (kd[:, 0], kd[:, 1], kd[:, 2], kd[:, 3]))
-        np.maximum(m2, _TINY, out=m2)
+        np.maximum(m2, TINY, out=m2)
         np.reciprocal(m2, out=m2)
         e = _Work.get("e", (q, 2, b))
         np.multiply(kd[:, 2], m2, out=e[:, 0])
@@ -221,7 +221,7 @@ class NumpyCableModel(CableModel):
         return r, x, y, sec
 
 
-    def _start(self, table, arms: _Arms):
+    def _start(self, table, arms: Arms):
         """Start of Newton: the cable with one compliance along each arm, at the arm's rms moment.
 
         A relaxed fixed point in ``z = ln(mean |M|^2)`` from the fully slipped cable:
@@ -245,7 +245,7 @@ class NumpyCableModel(CableModel):
             det = d0 + k * (k / 12.0 - d1)
             # mean of |p0 eta + p1|^2 over eta in [0, 1]
             m2 = ((a.real**2 + a.imag**2) / 3.0 + (a.real * b.real + a.imag * b.imag) + b.real**2 + b.imag**2)
-            znew = np.log(np.maximum(m2, _TINY) / np.maximum(det.real**2 + det.imag**2, _TINY))
+            znew = np.log(np.maximum(m2, TINY) / np.maximum(det.real**2 + det.imag**2, TINY))
             z = znew if z is None else z + _START_RELAX * (znew - z)
             kr, ki, _, _ = _lookup(table, z[None, :], arms.row, log=False)
             k = kr[0] + 1j * ki[0]
@@ -253,7 +253,7 @@ class NumpyCableModel(CableModel):
         return np.stack([a, b]) / det
 
 
-    def _newton(self, table, arms: _Arms, p):
+    def _newton(self, table, arms: Arms, p):
         """Damped Newton from ``p`` (2, b) for every entry; converged entries leave the batch.
 
         A step is at most half of ``|p|`` (far from the solution the widely linear model is poor),
@@ -274,12 +274,12 @@ class NumpyCableModel(CableModel):
             r, x, y, _ = self._residual(table, sub, pa)
             d = _widely_solve(x, y, r)
             size = np.sqrt((d.real**2 + d.imag**2).sum(axis=0)
-                           / np.maximum((pa.real**2 + pa.imag**2).sum(axis=0), _TINY))
+                           / np.maximum((pa.real**2 + pa.imag**2).sum(axis=0), TINY))
             f = (r.real**2 + r.imag**2).sum(axis=0)
             damping = np.where(f > merit, 0.5 * damping, np.minimum(1.0, 2.0 * damping))
             merit = f
             ok = np.isfinite(size)
-            lam = np.where(ok, np.minimum(damping, _STEP_CAP / np.maximum(size, _TINY)), 0.0)
+            lam = np.where(ok, np.minimum(damping, _STEP_CAP / np.maximum(size, TINY)), 0.0)
             d *= lam
             d[:, ~ok] = 0.0
             pa += d

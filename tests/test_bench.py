@@ -317,10 +317,10 @@ def test_robust_scale_does_not_let_outliers_mask_each_other(damper1):
 
 def test_never_cut_below_three_runs_or_a_majority():
     # the rule itself: worst scores first, at most n - max(3, n // 2 + 1) runs
-    assert list(cleaning._outliers(np.array([5.0, 4.0, 0.5, 6.0, 0.9]), 3.0)) == [0, 3]     # n = 5: keep 3
-    assert list(cleaning._outliers(np.array([5.0, 4.0, 7.0]), 3.0)) == []                   # n = 3: never
-    assert list(cleaning._outliers(np.array([5.0, 4.0, 7.0, 3.5, 8.0, 1.0]), 3.0)) == [2, 4]  # n = 6: keep 4
-    assert list(cleaning._outliers(np.array([np.nan, 9.0, 1.0, 1.0, 1.0]), 3.0)) == [1]     # NaN: not scored
+    assert list(cleaning.outliers(np.array([5.0, 4.0, 0.5, 6.0, 0.9]), 3.0)) == [0, 3]     # n = 5: keep 3
+    assert list(cleaning.outliers(np.array([5.0, 4.0, 7.0]), 3.0)) == []                   # n = 3: never
+    assert list(cleaning.outliers(np.array([5.0, 4.0, 7.0, 3.5, 8.0, 1.0]), 3.0)) == [2, 4]  # n = 6: keep 4
+    assert list(cleaning.outliers(np.array([np.nan, 9.0, 1.0, 1.0, 1.0]), 3.0)) == [1]     # NaN: not scored
 
 
 def test_three_runs_with_an_outlier_are_left_alone(damper1):
@@ -510,7 +510,7 @@ def branch_test(damper, n_a, n_b, rng, bad=(), band=BAND, bad_offset=0.25) -> Te
 
 def plain_scores(t):
     """The run scores without branch detection (every line one group): what removal used to see."""
-    return np.fmax(*[np.sqrt(np.nanmean(cleaning._robust_z(x, NOISE_FLOOR) ** 2, axis=1))
+    return np.fmax(*[np.sqrt(np.nanmean(cleaning.robust_z(x, NOISE_FLOOR) ** 2, axis=1))
                      for x in cleaning._components(t)])
 
 

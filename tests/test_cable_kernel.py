@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sbcal.model.cable import CableModel
-from sbcal.model.cable_sections import _compliance_table
+from sbcal.model.cable_sections import compliance_table
 from sbcal.model.fem import STANDARD_GRID_HZ
 from sbcal.model.hysteresis import law_for
 from tests.cable_reference import NumpyCableModel, _lookup
@@ -74,7 +74,7 @@ def test_kernel_lookup_is_the_table_everywhere(damper1):
     law = law_for("iwan")
     p = _sets("iwan", 3, seed=1)
     lp = {k: p[k][:, None] for k in law.parameter_names}
-    table = _compliance_table(law, lp, p["EJ_min"] * (1 + 1j * p["beta_material"]), 96, 3.0)
+    table = compliance_table(law, lp, p["EJ_min"] * (1 + 1j * p["beta_material"]), 96, 3.0)
     rng = np.random.default_rng(0)
     y = rng.uniform(table.y0.min() - 20, table.y_end.max() + 20, 3000)
     rows = rng.integers(0, 3, y.size)

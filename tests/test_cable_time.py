@@ -19,7 +19,7 @@ from sbcal.model.cable_element import ElementCableModel
 from sbcal.model.cable_time import TimeResponse, time_response
 from sbcal.model.fem import STANDARD_GRID_HZ
 from sbcal.model.hysteresis import LAWS, law_for
-from sbcal.model.law_base import _masing_loop
+from sbcal.model.law_base import masing_loop
 from sbcal.model.law_time import (BoucWenStepper, DahlStepper, JenkinsPopulation, drive, law_stepper,
                                   transition_curvature)
 
@@ -122,7 +122,7 @@ def test_jenkins_population_follows_the_steady_loop(name):
         return (pop.stiffness[0][ok] * np.minimum(x[..., None], pop.slip[0][ok])).sum(axis=-1) + pop.elastic[0] * x
 
     for j, a in enumerate(amps):
-        own = _masing_loop(backbone, a, theta)
+        own = masing_loop(backbone, a, theta)
         np.testing.assert_allclose(got[:, j], own, rtol=0, atol=1e-12 * np.max(np.abs(own)))
 
 

@@ -19,8 +19,8 @@ from sbcal.inference.calibrate import likelihood_for
 from sbcal.cli import main
 from sbcal.model.damper import resolve_damper
 from sbcal.diagnosis.diagnose import DiagnoseConfig, diagnose
-from sbcal.diagnosis.locate import _bands
-from sbcal.diagnosis.words import _combined, _parameters, _scale_factor, _test_estimates
+from sbcal.diagnosis.locate import off_bands
+from sbcal.diagnosis.words import _combined, _scale_factor, _test_estimates, effect_parameters
 from sbcal.inference.cable_fit import CableForward, cable_likelihood
 from sbcal.model.extensions import EXTENSIONS, model_for
 from sbcal.model.fem import STANDARD_GRID_HZ, dynamic_stiffness
@@ -130,7 +130,7 @@ def test_bands_join_neighbouring_off_lines():
 
     z = np.zeros((2, 10))
     z[0, [1, 2, 4, 8]] = [5, -6, 7, 9]  # 1, 2 and 4 join (a gap of one line), 8 alone
-    bands = _bands(["t"], [L()], [z], [np.full(10, 4.0)])
+    bands = off_bands(["t"], [L()], [z], [np.full(10, 4.0)])
     assert [(b["quantity"], b["f_lo"], b["f_hi"]) for b in bands] == [("magnitude", 5, 8), ("magnitude", 12, 12)]
     assert bands[0]["max_abs_z"] == 7
 
@@ -269,7 +269,7 @@ def test_each_tests_own_delay_of_a_joint_fit(damper, small_bench):
     key = ("strand_slip+sensor_delay", "dry")
     base = tuple(n for n in like.prior.names if n != "delay_s")
     fit = {"like": like, "params": draws, "names": like.prior.names, "tests": tuple(tests)}
-    out = _parameters("sensor_delay", {key: fit}, [key], base, each_test=True)
+    out = effect_parameters("sensor_delay", {key: fit}, [key], base, each_test=True)
     v = out["values"]["delay_s"]
     assert v["scale_factor"] == pytest.approx(factor)
     assert v["q95"] - v["median"] == pytest.approx(1.645 * factor * draws["delay_s"].std(), rel=1e-6)
@@ -282,7 +282,7 @@ def test_diagnose_fits_the_runs_the_clean_stage_stored(tmp_path):
     import pandas as pd
 
     from sbcal.data.bench import curves_to_frame
-    from sbcal.diagnosis.fits import _jobs
+    from sbcal.diagnosis.fits import fit_jobs
     from sbcal.pipeline import Settings, clean
 
     d = resolve_damper("damper1")
@@ -300,8 +300,8 @@ def test_diagnose_fits_the_runs_the_clean_stage_stored(tmp_path):
         assert json.loads((tmp_path / f"runs{z:g}" / "damper1" / "data.json").read_text())["tests"]["0.5-0.5"][
             "removed_runs"] == ([3] if kept == 5 else [])
         for primary in ("baseline", "strand_slip"):
-            for job in _jobs(primary, (), damper=d, data=data, tests=["0.5-0.5", "1-1"], seed=0,
-                             config=settings.diagnose, prior_path=None):
+            for job in fit_jobs(primary, (), damper=d, data=data, tests=["0.5-0.5", "1-1"], seed=0,
+                                config=settings.diagnose, prior_path=None):
                 likes = job.target.likes if isinstance(job.target, JointLikelihood) else [job.target]
                 assert [lk.y.shape[1] for lk in likes] == [kept] * len(likes), (z, primary)
 

@@ -26,7 +26,7 @@ from sbcal.model.fem import dynamic_stiffness, natural_frequencies
 from sbcal.model.hysteresis import law_for
 from sbcal.design.cable_run import RANGE_STATUS, load_cable_run
 from sbcal.design.impedance import impedance_from_cable
-from sbcal.design.predict import EXTRAPOLATION_MARGIN, _resonances, model_error_of, predict
+from sbcal.design.predict import EXTRAPOLATION_MARGIN, level_resonances, model_error_of, predict
 from sbcal.design.predict_store import read_prediction, read_sweep, store_prediction, store_sweep
 from sbcal.design.sweep import sweep
 from sbcal.inference.sampler import SampleResult
@@ -315,10 +315,10 @@ def test_velocity_mode(run):
     n = CHAINS * DRAWS
     zero = {k: np.zeros(n) for k in ("a1", "a2")}
     # the reference: the same unit draws of the offsets, from the same seed, through the model
-    from sbcal.design.cable_run import _geometry, _streams, _tolerance, _unit_draws
-    _, geo = _streams(0)
-    tol = _tolerance([NEW], False)
-    overrides = dict(zero, **_geometry(NEW, tol, _unit_draws(tol, n, geo)))
+    from sbcal.design.cable_run import drawn_geometry, drawn_tolerances, streams, unit_draws
+    _, geo = streams(0)
+    tol = drawn_tolerances([NEW], False)
+    overrides = dict(zero, **drawn_geometry(NEW, tol, unit_draws(tol, n, geo)))
     ref = _reference(run, NEW, f, 2e3 * v / (2 * np.pi * f), **overrides)
     np.testing.assert_allclose(p.power_w[0], ref[2], rtol=1e-9)
     # under constant velocity the power is 0.5 R v^2, so a resonance is the power's peak: on a dense grid
@@ -358,7 +358,7 @@ def test_resonances_are_the_peaks_of_the_resistance():
     ej = 9.0 * np.exp(0.03 * rng.standard_normal(40))
     f = np.geomspace(3.0, 60.0, 601)
     fuu = dynamic_stiffness(d, f, EJ=ej, beta=0.01)
-    res = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    res = level_resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
     fn = natural_frequencies(d, EJ=ej)
     assert len(res) == 4 and all(r.share == 1.0 for r in res)
     for k, r in enumerate(res):
@@ -374,7 +374,7 @@ def test_resonances_are_the_peaks_of_the_resistance():
     p_dense = 0.5 * 2 * np.pi * dense * fd.imag * 1e-6
     peaks = dense[1:-1][(fd.imag[1:-1] / dense[1:-1] > fd.imag[:-2] / dense[:-2])
                         & (fd.imag[1:-1] / dense[1:-1] > fd.imag[2:] / dense[2:])]
-    one = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    one = level_resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
     assert len(one) == peaks.size == 4
     for r, fp in zip(one, peaks):
         assert r.freq_hz[1] == pytest.approx(fp, rel=2e-4)
@@ -389,7 +389,7 @@ def test_a_rising_edge_at_the_band_end_is_no_resonance():
     scale = np.array([1.0, 1.02, 0.98])[:, None]
     r = 1.0 + 3.0 * lorentz(9.0 * scale, 0.8) + 2.0 * lorentz(20.0 * scale, 1.5) + 8.0 * lorentz(39.8, 1.5)
     fuu = 2 * np.pi * f * r * 1j + 1.0  # Im f = omega R
-    res = _resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
+    res = level_resonances(f, fuu, np.full(f.size, 1e-3), 1.0)
     assert [round(x.freq_hz[1], 1) for x in res] == [9.0, 20.0] and all(x.share == 1.0 for x in res)
 
 

@@ -15,7 +15,7 @@ from scipy.stats import binom
 from sbcal.cli import main
 from sbcal.data.bench import write_bench
 from sbcal.diagnosis.diagnose import DiagnoseConfig
-from sbcal.diagnosis.locate import _bands
+from sbcal.diagnosis.locate import off_bands
 from sbcal.diagnosis.remainder import headline, remainder, shown_qualifier
 from sbcal.inference.checks import discrepancy, materiality, predictive_check, qualifier
 from sbcal.inference.likelihood import TestLikelihood
@@ -86,8 +86,8 @@ def test_an_offset_at_one_amplitude_is_partial_and_becomes_the_discrepancy(dampe
     base = predictive_check(*_tests(damper, np.random.default_rng(1), [(0.2, 0.1), (0.2, 0.1)]), var)
     tests = ["0.5-0.5", "1-1"]
     rem = remainder("fixture_mass", c, base, tests=tests, likes=likes, model_mean=dict(zip(tests, means)),
-                    bands=_bands(tests, likes, c.z, c.thresholds), tried=[{"effect": "sensor_delay", "explained": 0.1}],
-                    config=DiagnoseConfig())
+                    bands=off_bands(tests, likes, c.z, c.thresholds),
+                    tried=[{"effect": "sensor_delay", "explained": 0.1}], config=DiagnoseConfig())
     assert rem["qualifier"] == "partial" and rem["tests"] == ["1-1"] and 0 < rem["share"] < 0.2
     top = rem["bands"][0]
     assert top["test"] == "1-1" and top["amplitude"] == "1 mm"

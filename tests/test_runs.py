@@ -171,9 +171,9 @@ def test_permuted_prior_file_gives_the_same_numbers(bench, tmp_path):
     in another order gives the very same posterior, draw for draw."""
     import tomllib
 
-    from sbcal.inference.priors import _default_path
+    from sbcal.inference.priors import default_path
 
-    doc = tomllib.loads(_default_path().read_text())
+    doc = tomllib.loads(default_path().read_text())
     lines = []
     for name, box in reversed(list(doc["parameters"].items())):  # tables in reverse order
         lines.append(f"[parameters.{name}]")

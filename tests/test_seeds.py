@@ -17,7 +17,7 @@ from sbcal.inference.cable_fit import cable_seed, read_cable
 from sbcal.cli import main
 from sbcal.model.damper import resolve_damper
 from sbcal.diagnosis.diagnose import DiagnoseConfig
-from sbcal.diagnosis.fits import _fit, _jobs
+from sbcal.diagnosis.fits import _fit, fit_jobs
 from sbcal.model.hysteresis import law_for
 from sbcal.pipeline import Settings, sample_tests
 from sbcal.inference.sampler import SamplerConfig
@@ -125,8 +125,8 @@ def test_sbcal_cable_end_to_end_and_diagnose_makes_the_same_fit(cable_bench, tmp
     # so the very same draws as sbcal cable's stored ones
     d = resolve_damper("damper1")
     data = clean_bench(load_bench(cable_bench))
-    jobs = _jobs("strand_slip", (), damper=d, data=data, tests=["0.2-0.2", "1-1"], seed=3,
-                 config=replace(DiagnoseConfig(), laws=(LAW,)), prior_path=None)
+    jobs = fit_jobs("strand_slip", (), damper=d, data=data, tests=["0.2-0.2", "1-1"], seed=3,
+                    config=replace(DiagnoseConfig(), laws=(LAW,)), prior_path=None)
     assert len(jobs) == 1 and jobs[0].key == ("strand_slip", "dry", LAW)
     assert jobs[0].stream.generate_state(4).tolist() == cable_seed(3, "damper1", "dry", LAW).generate_state(4).tolist()
     res = _fit(jobs[0])

@@ -281,16 +281,16 @@ def add_design(sub):
 def cmd_design(args) -> int:
     from ..design.cable_run import load_cable_run
     from ..design.conductor import resolve_conductor
-    from ..design.life import _check_across, parse_climate
+    from ..design.life import check_across, parse_climate
     from ..design.search import design
     from ..design.search_store import design_dir, store_design
     from ..design.space import load_space
-    from ..design.vibration import _wind_check
+    from ..design.vibration import wind_check
     from ..model.damper import resolve_damper
     from ..pipeline import executor_for
 
     wind = _parse_wind(args.wind)
-    _wind_check(wind)
+    wind_check(wind)
     if args.draws < 2:
         raise InputError(f"--draws {args.draws}: must be >= 2")
     if args.workers < 1:
@@ -299,7 +299,7 @@ def cmd_design(args) -> int:
         raise InputError("--objective life: give the wind climate with --climate (e.g. weibull:k=2.0,c=4.5)")
     grid = _parse_grid(args.search_grid)
     climate = parse_climate(args.climate) if args.climate else None
-    across = _check_across(args.across)
+    across = check_across(args.across)
     conductor = resolve_conductor(args.conductor)
     start = resolve_damper(args.damper)
     space = load_space(args.space, start)  # the input files first, then the run store

@@ -23,7 +23,7 @@ from ..core.errors import InputError
 
 __all__ = [
     "BENCH_COLUMNS", "MEASURED_COLUMNS", "SE_DEFAULT_DOF", "THESIS_TESTS", "FREQ_REL_TOL", "FREQ_STEP_FRACTION", "FREQ_NEAR_REL", "TestData", "BenchData",
-    "test_label", "curves_to_frame", "write_bench", "rows_digest",
+    "test_label", "curves_to_frame", "write_bench", "rows_digest", "readonly", "nanmedian0",
 ]
 
 BENCH_COLUMNS = (
@@ -66,7 +66,8 @@ left out, never made a line of its own. Farther away it is a line of the run's o
 
 _MEASURED_FIELDS = ("se_logmag", "se_phase", "se_dof", "distortion")
 
-def _readonly(a, dtype=None) -> np.ndarray:
+def readonly(a, dtype=None) -> np.ndarray:
+    """A read-only copy of ``a`` as an array (of ``dtype`` when given)."""
     a = np.array(a, dtype=dtype, copy=True)
     a.setflags(write=False)
     return a
@@ -121,12 +122,12 @@ class TestData:
 
     def __post_init__(self):
         set_ = object.__setattr__
-        set_(self, "runs", _readonly(self.runs, np.int64))
+        set_(self, "runs", readonly(self.runs, np.int64))
         for name in ("freq_hz", "amplitude_mm_pp", "magnitude", "phase_deg"):
-            set_(self, name, _readonly(self.__dict__[name], float))
+            set_(self, name, readonly(self.__dict__[name], float))
         for name in _MEASURED_FIELDS:
             if self.__dict__[name] is not None:
-                set_(self, name, _readonly(self.__dict__[name], np.int64 if name == "se_dof" else float))
+                set_(self, name, readonly(self.__dict__[name], np.int64 if name == "se_dof" else float))
                 if self.__dict__[name].shape != self.magnitude.shape:
                     raise ValueError(f"TestData: {name} must have the shape of magnitude")
         set_(self, "unmatched", tuple((int(r), float(f), float(c)) for r, f, c in self.unmatched))
@@ -146,7 +147,7 @@ class TestData:
         where none does; None when nothing was measured."""
         if self.distortion is None or not np.isfinite(self.distortion).any():
             return None
-        return _nanmedian0(self.distortion)
+        return nanmedian0(self.distortion)
 
     @property
     def present(self) -> np.ndarray:
@@ -358,11 +359,11 @@ class BenchData:
         if "distortion" in f:
             measured["distortion"] = grid("distortion")
         # every line has at least one run by construction: the median is defined everywhere
-        return TestData(damper, test, runs, centres, _nanmedian0(grids[0]), grids[1], grids[2], tuple(unmatched),
+        return TestData(damper, test, runs, centres, nanmedian0(grids[0]), grids[1], grids[2], tuple(unmatched),
                         **measured)
 
 
-def _nanmedian0(a: np.ndarray) -> np.ndarray:
+def nanmedian0(a: np.ndarray) -> np.ndarray:
     """nanmedian over axis 0, NaN (and no warning) for all-NaN columns.
 
     np.nanmedian goes through masked arrays and is ~10x slower on these small blocks.

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from ..core.errors import InputError
 from .bench import BenchData, TestData
-from .cleaning import DEFAULT_Z_THRESHOLD, _check_threshold, remove_outlier_runs
+from .cleaning import DEFAULT_Z_THRESHOLD, check_threshold, remove_outlier_runs
 
 
 __all__ = ["CleanBench", "clean_bench"]
@@ -90,14 +90,14 @@ class CleanBench:
                     raise InputError(f"{source}: key 'tests.{test}.removed_runs': run {min(missing)} is not a run of "
                                      f"{damper} {test} in {bench.source}")
                 removed[damper, test] = tuple(sorted(runs))
-        return cls(bench, removed, _check_threshold(z_threshold))
+        return cls(bench, removed, check_threshold(z_threshold))
 
 
 def clean_bench(bench: BenchData, z_threshold: float = DEFAULT_Z_THRESHOLD, *, dampers=None) -> CleanBench:
     """Decide every test's outlier runs (:func:`sbcal.data.cleaning.remove_outlier_runs`) for ``dampers``
     (default: all of the file's). The pipeline stores this decision and later stages read it back
     (:meth:`CleanBench.from_stored`); this function is for a bench used outside a run store."""
-    z = _check_threshold(z_threshold)
+    z = check_threshold(z_threshold)
     if isinstance(bench, CleanBench):
         raise TypeError("clean_bench: the bench is already cleaned")
     names = bench.dampers() if dampers is None else list(dampers)

@@ -11,13 +11,14 @@ import numpy as np
 import pandas as pd
 
 from ..core.errors import InputError
-from .bench import TestData, _nanmedian0, _readonly
+from .bench import TestData, nanmedian0, readonly
 
 
 __all__ = [
     "DEFAULT_Z_THRESHOLD", "NOISE_FLOOR", "BRANCH_GAP", "BRANCH_MIN_FRACTION", "BRANCH_MIN_RUNS",
-    "BRANCH_MAX_LINE_FRACTION", "Branches", "CleanedTest", "quality_table", "run_scores", "find_branches",
-    "remove_outlier_runs",
+    "BRANCH_MAX_LINE_FRACTION", "MAX_HALF_WINDOW", "VALUE_Z", "VALUE_MIN_RUNS", "Branches", "CleanedTest",
+    "quality_table", "run_scores", "find_branches", "remove_outlier_runs", "window_sum", "robust_z", "score_runs",
+    "check_threshold", "outliers",
 ]
 
 DEFAULT_Z_THRESHOLD = 3.0
@@ -55,9 +56,9 @@ split can be seen: a fold is confined to a band near a resonance, while a group 
 differs everywhere (and is left to outlier removal)."""
 
 _ROBUST_POOL = 30     # residuals pooled per line for the robust scale (MAD rel. error ~ 1.17/sqrt(30) = 21 %)
-_MAX_HALF_WINDOW = 3  # pool at most +-3 neighbouring lines
-_VALUE_Z = 8.0        # single values beyond 8 robust sigma (a glitch, not noise) leave the noise model
-_VALUE_MIN_RUNS = 4   # ... judged only on lines with >= 4 runs (with 3 the robust scale is too noisy)
+MAX_HALF_WINDOW = 3   # pool at most +-3 neighbouring lines
+VALUE_Z = 8.0         # single values beyond 8 robust sigma (a glitch, not noise) leave the noise model
+VALUE_MIN_RUNS = 4    # ... judged only on lines with >= 4 runs (with 3 the robust scale is too noisy)
 
 # Median |x_i - median(x)| and RMS of (x_i - median(x)) for n iid N(0, 1) values, n = 2..15
 # (simulation, 2e7 residuals per n; n = 2 is exact: 0.6745/sqrt(2) and 1/sqrt(2)). Beyond 15:
@@ -83,7 +84,7 @@ def _phase_unwrapped_deg(phase_deg: np.ndarray) -> np.ndarray:
     rad = np.radians(phase_deg)
     centre = np.angle(np.nansum(np.exp(1j * rad), axis=0))  # 0 for a line with no reading
     out = centre + np.mod(rad - centre + np.pi, 2 * np.pi) - np.pi
-    med = _nanmedian0(out)
+    med = nanmedian0(out)
     out -= 2 * np.pi * np.floor((np.nan_to_num(med) + np.pi / 2) / (2 * np.pi))
     return np.where(np.isnan(phase_deg), np.nan,
                     np.where(np.abs(out - rad) < 1e-9, phase_deg, np.degrees(out)))
@@ -158,7 +159,7 @@ def _window(a: np.ndarray, h: int) -> np.ndarray:
     return out.reshape(-1, nf)
 
 
-def _window_sum(v: np.ndarray, h: int) -> np.ndarray:
+def window_sum(v: np.ndarray, h: int) -> np.ndarray:
     """Sum of ``v`` (n_freq,) over lines j-h..j+h (truncated at the ends)."""
     c = np.concatenate([[0.0], np.cumsum(v)])
     j = np.arange(v.size)
@@ -172,12 +173,12 @@ def _pooled_scale(u: np.ndarray, floor: float) -> np.ndarray:
     values, else the widest; floored at ``floor``; NaN where no line nearby has two runs.
     """
     scale = np.full(u.shape[1], np.nan)
-    for h in range(_MAX_HALF_WINDOW, -1, -1):  # narrowest window that has enough residuals wins
+    for h in range(MAX_HALF_WINDOW, -1, -1):  # narrowest window that has enough residuals wins
         w = _window(u, h)
         enough = np.sum(~np.isnan(w), axis=0) >= _ROBUST_POOL
-        take = enough | (h == _MAX_HALF_WINDOW)
+        take = enough | (h == MAX_HALF_WINDOW)
         if take.any():
-            med = _nanmedian0(w[:, take])
+            med = nanmedian0(w[:, take])
             scale[take] = np.where(np.isnan(med), scale[take], med)
     return np.maximum(scale, floor)  # NaN stays NaN
 
@@ -189,16 +190,16 @@ def _centres(x: np.ndarray, group: np.ndarray | None) -> tuple[np.ndarray, np.nd
     0 elsewhere) each branch of a split line has its own centre.
     """
     if group is None:
-        return (np.broadcast_to(_nanmedian0(x), x.shape),
+        return (np.broadcast_to(nanmedian0(x), x.shape),
                 np.broadcast_to(np.sum(~np.isnan(x), axis=0), x.shape))
     one = group == 1
     x1, x0 = np.where(one, x, np.nan), np.where(one, np.nan, x)
-    centre = np.where(one, _nanmedian0(x1), _nanmedian0(x0))
+    centre = np.where(one, nanmedian0(x1), nanmedian0(x0))
     count = np.where(one, np.sum(~np.isnan(x1), axis=0), np.sum(~np.isnan(x0), axis=0))
     return centre, count
 
 
-def _robust_z(x: np.ndarray, floor: float, group: np.ndarray | None = None) -> np.ndarray:
+def robust_z(x: np.ndarray, floor: float, group: np.ndarray | None = None) -> np.ndarray:
     """Calibrated robust z-scores of x (n_runs, n_freq), NaN where a group has < 3 runs.
 
     Centre: the median across the runs of each line (of each branch, at a split line: ``group``).
@@ -251,8 +252,8 @@ class Branches:
     """
 
     split: bool = False
-    freq_hz: np.ndarray = field(default_factory=lambda: _readonly([], float))
-    separation: np.ndarray = field(default_factory=lambda: _readonly([], float))
+    freq_hz: np.ndarray = field(default_factory=lambda: readonly([], float))
+    separation: np.ndarray = field(default_factory=lambda: readonly([], float))
     minority: tuple = ()
     runs: tuple = ()
     kept: str = ""
@@ -284,7 +285,7 @@ def _line_splits(x: np.ndarray, floor: float):
     0 where no split is allowed; the gap's midpoint; the runs present; the minimum group size.
     """
     n = np.sum(~np.isnan(x), axis=0)
-    u = np.where(n >= 2, np.abs(x - _nanmedian0(x)) / _q(n), np.nan)
+    u = np.where(n >= 2, np.abs(x - nanmedian0(x)) / _q(n), np.nan)
     scale = _pooled_scale(u, floor)
     m = np.maximum(BRANCH_MIN_RUNS, np.ceil(BRANCH_MIN_FRACTION * n)).astype(int)
     o = np.sort(x, axis=0)  # NaN last
@@ -324,7 +325,7 @@ def _branch_groups(test: TestData, floor: float, comps=None) -> tuple[Branches, 
     main = lines[np.lexsort((-sep[lines], -size[lines]))[0]]  # most balanced, then widest gap
     ids = test.runs
     branches = Branches(
-        split=True, freq_hz=_readonly(test.freq_hz[lines], float), separation=_readonly(sep[lines], float),
+        split=True, freq_hz=readonly(test.freq_hz[lines], float), separation=readonly(sep[lines], float),
         minority=tuple(tuple(int(r) for r in ids[minor[:, j]]) for j in lines),
         runs=(tuple(int(r) for r in ids[minor[:, main]]),
               tuple(int(r) for r in ids[present[:, main] & ~minor[:, main]])),
@@ -356,13 +357,13 @@ def find_branches(test: TestData, *, floor: float = NOISE_FLOOR) -> Branches:
 
 # --- outlier runs (thesis 2.6) -------------------------------------------------------------------
 
-def _scores(test: TestData, floor: float):
+def score_runs(test: TestData, floor: float):
     """(run scores, branches, groups, components): see :func:`run_scores`, :func:`_branch_groups`."""
     comps = _components(test)
     branches, group = _branch_groups(test, floor, comps)
     out = np.full(test.runs.size, -np.inf)
     for c in comps:
-        z2 = _robust_z(c, floor, group) ** 2
+        z2 = robust_z(c, floor, group) ** 2
         count = np.sum(~np.isnan(z2), axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             rms = np.sqrt(np.where(count > 0, np.nansum(z2, axis=1) / np.maximum(count, 1), np.nan))
@@ -390,7 +391,7 @@ def run_scores(test: TestData, *, floor: float = NOISE_FLOOR) -> np.ndarray:
         with two response branches (:func:`find_branches`) a run is standardised against its own
         branch at the split lines, so a branch is not scored as a group of outliers.
     """
-    return _scores(test, floor)[0]
+    return score_runs(test, floor)[0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -420,14 +421,15 @@ class CleanedTest:
     branches: Branches = _NO_BRANCHES
 
 
-def _check_threshold(z_threshold) -> float:
+def check_threshold(z_threshold) -> float:
+    """The outlier z threshold as a float; InputError unless finite and > 0."""
     z = float(z_threshold)
     if not (math.isfinite(z) and z > 0):
         raise InputError(f"z threshold {z_threshold!r}: must be a finite number > 0")
     return z
 
 
-def _outliers(scores: np.ndarray, z_threshold: float) -> np.ndarray:
+def outliers(scores: np.ndarray, z_threshold: float) -> np.ndarray:
     """Indices of removed runs: score > threshold, worst first, keeping >= 3 runs and a majority."""
     n = scores.size
     max_remove = max(0, n - max(3, n // 2 + 1))  # the median/MAD centre needs a clean majority
@@ -463,10 +465,10 @@ def remove_outlier_runs(test: TestData, z_threshold: float = DEFAULT_Z_THRESHOLD
         so at least three runs and a majority remain; a test of three runs or fewer is never cut.
         ``branches`` says whether the test split and that both branches were kept.
     """
-    z = _check_threshold(z_threshold)
-    scores, branches, _, _ = _scores(test, NOISE_FLOOR)
-    out = _outliers(scores, z)
-    scores = _readonly(scores, float)
+    z = check_threshold(z_threshold)
+    scores, branches, _, _ = score_runs(test, NOISE_FLOOR)
+    out = outliers(scores, z)
+    scores = readonly(scores, float)
     if out.size == 0:
         return CleanedTest(test, (), scores, branches)
     kept = np.delete(test.runs, out)

@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import InputError
-from .bench import TestData, _readonly
-from .cleaning import (_MAX_HALF_WINDOW, _VALUE_MIN_RUNS, _VALUE_Z, DEFAULT_Z_THRESHOLD, NOISE_FLOOR, _check_threshold,
-                       _outliers, _robust_z, _scores, _window_sum)
+from .bench import TestData, readonly
+from .cleaning import (DEFAULT_Z_THRESHOLD, MAX_HALF_WINDOW, NOISE_FLOOR, VALUE_MIN_RUNS, VALUE_Z, check_threshold,
+                       outliers, robust_z, score_runs, window_sum)
 
 
 __all__ = ["SINGLE_RUN_SIGMA", "NoiseModel", "noise_model"]
@@ -82,8 +82,8 @@ def _pooled_sigma(x: np.ndarray, floor: float, single_run_sigma: float, group: n
     branch on its own median (a branch is not a glitch), a split line keeps the scatter about its
     overall mean (both branches), uses its own lines only and is left out of its neighbours' pools.
     """
-    z = _robust_z(x, floor, group)
-    glitch = (np.abs(z) > _VALUE_Z) & (np.sum(~np.isnan(x), axis=0) >= _VALUE_MIN_RUNS)  # NaN z: False
+    z = robust_z(x, floor, group)
+    glitch = (np.abs(z) > VALUE_Z) & (np.sum(~np.isnan(x), axis=0) >= VALUE_MIN_RUNS)  # NaN z: False
     x = np.where(glitch, np.nan, x)
     n = np.sum(~np.isnan(x), axis=0)
     mean = np.where(n > 0, np.nansum(x, axis=0) / np.maximum(n, 1), 0.0)
@@ -93,9 +93,9 @@ def _pooled_sigma(x: np.ndarray, floor: float, single_run_sigma: float, group: n
     ss_pool, dof_pool = np.where(alone, 0.0, ss), np.where(alone, 0.0, dof)
     ss_w, dof_w = ss.copy(), dof.copy()
     done = (dof >= _POOL_DOF) | alone
-    for h in range(1, _MAX_HALF_WINDOW + 1):  # the narrowest window with enough dof, else the widest
-        s_h, d_h = _window_sum(ss_pool, h), _window_sum(dof_pool, h)
-        take = ~done & ((d_h >= _POOL_DOF) | (h == _MAX_HALF_WINDOW))
+    for h in range(1, MAX_HALF_WINDOW + 1):  # the narrowest window with enough dof, else the widest
+        s_h, d_h = window_sum(ss_pool, h), window_sum(dof_pool, h)
+        take = ~done & ((d_h >= _POOL_DOF) | (h == MAX_HALF_WINDOW))
         ss_w[take], dof_w[take] = s_h[take], d_h[take]
         done |= take
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -143,12 +143,12 @@ def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, flo
         Shapes (n_freq,) on ``test.freq_hz``; all sigmas finite and > 0; ``dof_*`` the degrees
         of freedom of step 3 (0 where step 4 applied).
     """
-    z = _check_threshold(z_threshold)
+    z = check_threshold(z_threshold)
     if not (math.isfinite(floor) and floor > 0 and math.isfinite(single_run_sigma) and single_run_sigma > 0):
         raise InputError("noise_model: floor and single_run_sigma must be finite and > 0")
-    scores, branches, group, comps = _scores(test, floor)
+    scores, branches, group, comps = score_runs(test, floor)
     keep = np.ones(test.runs.size, bool)
-    keep[_outliers(scores, z)] = False
+    keep[outliers(scores, z)] = False
     logmag, phase = (c[keep] for c in comps)
     group = None if group is None else group[keep]
     split = np.isin(test.freq_hz, branches.freq_hz) if branches.split else None
@@ -160,11 +160,11 @@ def noise_model(test: TestData, *, z_threshold: float = DEFAULT_Z_THRESHOLD, flo
         sig_p, dof_p, used_p = _with_measured(sig_p, dof_p, test.se_phase[keep], test.se_dof[keep], floor)
         measured = used_m | used_p
     return NoiseModel(
-        freq_hz=_readonly(test.freq_hz, float),
-        sigma_logmag=_readonly(sig_m, float),
-        sigma_phase=_readonly(sig_p, float),
-        n_runs=_readonly(test.present.sum(axis=0), np.int64),
-        dof_logmag=_readonly(dof_m, np.int64),
-        dof_phase=_readonly(dof_p, np.int64),
-        measured=_readonly(measured, bool),
+        freq_hz=readonly(test.freq_hz, float),
+        sigma_logmag=readonly(sig_m, float),
+        sigma_phase=readonly(sig_p, float),
+        n_runs=readonly(test.present.sum(axis=0), np.int64),
+        dof_logmag=readonly(dof_m, np.int64),
+        dof_phase=readonly(dof_p, np.int64),
+        measured=readonly(measured, bool),
     )

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from .bench import BenchData
-from .cleaning import DEFAULT_Z_THRESHOLD, _check_threshold, quality_table, remove_outlier_runs
+from .cleaning import DEFAULT_Z_THRESHOLD, check_threshold, quality_table, remove_outlier_runs
 from .noise import noise_model
 
 
@@ -60,7 +60,7 @@ def bench_summary(bench: BenchData, z_threshold: float = DEFAULT_Z_THRESHOLD) ->
         the standard errors [1] and [deg]; the largest force distortion [1] and its line; lines where the
         measured error sets the noise model's sigma). JSON-serialisable.
     """
-    z = _check_threshold(z_threshold)
+    z = check_threshold(z_threshold)
     out = {}
     for damper in bench.dampers():
         out[damper] = {}

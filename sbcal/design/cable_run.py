@@ -15,7 +15,8 @@ from ..inference.store import cable_state_of
 from ..model.damper import GEOMETRY, Damper
 
 
-__all__ = ["EXTRAPOLATION_MARGIN", "RANGE_STATUS", "CableRun", "load_cable_run"]
+__all__ = ["EXTRAPOLATION_MARGIN", "RANGE_STATUS", "CableRun", "load_cable_run", "is_calibration_damper", "streams",
+           "subset", "cable_params", "drawn_tolerances", "unit_draws", "drawn_geometry"]
 
 EXTRAPOLATION_MARGIN = 0.10
 """A state of the cable is outside the calibration when its largest arm curvature exceeds the largest
@@ -184,7 +185,8 @@ def load_cable_run(run) -> CableRun:
                     law=law, calibration=calibration, curvature_range=rng)
 
 
-def _is_calibration_damper(cable: CableRun, damper: Damper) -> bool:
+def is_calibration_damper(cable: CableRun, damper: Damper) -> bool:
+    """Whether ``damper`` is the run's calibration damper: the same name and the same geometry."""
     c = cable.calibration
     if c is None or c.name != damper.name:
         return False
@@ -193,13 +195,13 @@ def _is_calibration_damper(cable: CableRun, damper: Damper) -> bool:
 
 # --- the draws -------------------------------------------------------------------------------------
 
-def _streams(seed):
+def streams(seed):
     """Independent generators: the posterior subset and the geometry draws."""
     choice, geometry = np.random.SeedSequence(seed).spawn(2)
     return np.random.default_rng(choice), np.random.default_rng(geometry)
 
 
-def _subset(cable: CableRun, n_draws: int, rng) -> np.ndarray:
+def subset(cable: CableRun, n_draws: int, rng) -> np.ndarray:
     """Indices of the posterior draws used (all of them, in order, when n_draws >= the stored number)."""
     return subset_indices(cable.n_draws, n_draws, rng)
 
@@ -212,7 +214,8 @@ def subset_indices(n_total: int, n_draws: int, rng) -> np.ndarray:
     return np.sort(rng.choice(n_total, size=n_draws, replace=False))
 
 
-def _cable_params(cable: CableRun, idx, bench_effects: bool, own_offsets: bool) -> dict:
+def cable_params(cable: CableRun, idx, bench_effects: bool, own_offsets: bool) -> dict:
+    """The cable law's posterior draws ``idx`` by parameter (with the offsets and bench effects asked for)."""
     from ..model.hysteresis import law_for
 
     names = ["EJ_min", "beta_material", *law_for(cable.law).parameter_names]
@@ -223,19 +226,19 @@ def _cable_params(cable: CableRun, idx, bench_effects: bool, own_offsets: bool) 
     return {n: cable.draws[n][idx] for n in names}
 
 
-def _tolerance(designs, own_offsets: bool) -> dict:
+def drawn_tolerances(designs, own_offsets: bool) -> dict:
     """The tolerances drawn: the damper's (:meth:`Damper.tolerances`), without fields that are zero in
     every design and, for the calibration damper, without its offsets (the posterior's)."""
     return {k: float(v) for k, v in designs[0].tolerances().items()
             if any(getattr(d, k) != 0.0 for d in designs) and not (own_offsets and k in ("a1", "a2"))}
 
 
-def _unit_draws(tolerance: dict, n: int, rng) -> dict:
+def unit_draws(tolerance: dict, n: int, rng) -> dict:
     """``U(-1, 1)`` per toleranced field (sorted by name, so a seed fixes every field's draws)."""
     return {k: rng.uniform(-1.0, 1.0, n) for k in sorted(tolerance)}
 
 
-def _geometry(damper: Damper, tolerance: dict, units: dict) -> dict:
+def drawn_geometry(damper: Damper, tolerance: dict, units: dict) -> dict:
     """Per-draw geometry ``nominal + |nominal| pct/100 u`` of the toleranced fields (zero stays zero)."""
     out = {}
     for k, u in units.items():

@@ -33,7 +33,7 @@ from ..data.labels import DRY, parse_label
 from ..inference.discrepancy import true_mean_draws
 from ..model.damper import Damper
 from .cable_run import subset_indices
-from .predict import _x0
+from .predict import clamp_amplitude
 from .resonance import resonance_draws
 
 
@@ -173,7 +173,7 @@ def from_test(directory, *, freq_range=None, n_draws: int = 1000, rng: np.random
     true = true.reshape(-1, 2, F).transpose(1, 0, 2)  # (2, S, F)
     fuu = np.exp(true[0] + 1j * true[1])[:, keep]
     f = f[keep]
-    x0 = _x0("amplitude", label.below_mm_pp, f)
+    x0 = clamp_amplitude("amplitude", label.below_mm_pp, f)
     cfg = summary.get("config", {})
     return Characteristic(
         damper=str(cfg.get("damper", d.parent.parent.name)), state=label.state, source=f"test {test}", run=str(d),
@@ -202,8 +202,8 @@ def from_cable(directory, *, mode: str, level: float, freq_hz, n_draws: int = 30
     InputError
         No such run, no stored calibration damper, a posterior that did not converge.
     """
-    from .cable_run import _cable_params, _subset, load_cable_run
-    from .predict import _evaluate, model_error_of
+    from .cable_run import cable_params, load_cable_run, subset
+    from .predict import evaluate, model_error_of
 
     cable = load_cable_run(directory)
     if cable.convergence_warning():
@@ -212,10 +212,10 @@ def from_cable(directory, *, mode: str, level: float, freq_hz, n_draws: int = 30
     if not isinstance(damper, Damper):
         raise InputError(f"{cable.path}/summary.json: no damper_values (a cable run stored before sbcal kept them)")
     f = np.unique(np.asarray(freq_hz, float))
-    idx = _subset(cable, int(n_draws), rng)
-    params = _cable_params(cable, idx, bench_effects=False, own_offsets=True)
-    x0 = _x0(mode, level, f)
-    r = _evaluate(cable.law, (), damper, f, x0, params, idx.size)
+    idx = subset(cable, int(n_draws), rng)
+    params = cable_params(cable, idx, bench_effects=False, own_offsets=True)
+    x0 = clamp_amplitude(mode, level, f)
+    r = evaluate(cable.law, (), damper, f, x0, params, idx.size)
     fuu = r["fuu"]
     discrepancy = "none"
     try:

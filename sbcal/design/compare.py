@@ -34,7 +34,7 @@ import pandas as pd
 from ..core.errors import InputError
 from .acceptance import Acceptance
 from .characteristic import Characteristic, power
-from .predict import _quantiles
+from .predict import nan_quantiles
 
 
 __all__ = ["DECIDE", "CLEAR_PEAK", "Criterion", "Comparison", "compare_characteristics", "lab_gap"]
@@ -313,9 +313,10 @@ def compare_characteristics(before: Characteristic, after: Characteristic, accep
         p_all, verdict = None, "no spec"
     curves = {}
     for name, b, a in (("impedance", imp_b, imp_a), ("phase", ph_b, ph_a), ("power", pw_b, pw_a)):
-        curves[f"before_{name}"] = _quantiles(b)
-        curves[f"after_{name}"] = _quantiles(a)
-    curves["impedance_change"], curves["phase_change"], curves["power_change"] = _quantiles(d_imp), _quantiles(d_ph), _quantiles(d_pw)
+        curves[f"before_{name}"] = nan_quantiles(b)
+        curves[f"after_{name}"] = nan_quantiles(a)
+    curves["impedance_change"], curves["phase_change"], curves["power_change"] = (
+        nan_quantiles(d_imp), nan_quantiles(d_ph), nan_quantiles(d_pw))
     notes = [f"before: {before.source} ({before.discrepancy}); after: {after.source} ({after.discrepancy})",
              "the two calibrations are treated as independent: draws paired at random"]
     if before.damper == after.damper:

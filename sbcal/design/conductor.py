@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..core._io import bundled_names, name_and_description, read_toml, resolve_bundled
 from ..core.errors import InputError
-from ..model.damper import _number
+from ..model.damper import checked_number
 
 
 __all__ = [
@@ -150,7 +150,7 @@ def _get(section: dict, path: str, key: str, full: str, check: str, default=None
         if default is None:
             raise InputError(f"{path}: key '{full}': missing")
         return default
-    return _number(path, full, section[key], check)
+    return checked_number(path, full, section[key], check)
 
 
 def _choice(section: dict, path: str, key: str, full: str, choices, default: str) -> str:
@@ -170,8 +170,8 @@ def _sn_curve(value, path: str) -> tuple:
     for j, pair in enumerate(value):
         if not isinstance(pair, list) or len(pair) != 2:
             raise InputError(f"{path}: key '{key}[{j}]': expected a pair [cycles, stress_pa], got {pair!r}")
-        points.append((_number(path, f"{key}[{j}][0]", pair[0], "pos"),
-                       _number(path, f"{key}[{j}][1]", pair[1], "pos")))
+        points.append((checked_number(path, f"{key}[{j}][0]", pair[0], "pos"),
+                       checked_number(path, f"{key}[{j}][1]", pair[1], "pos")))
     for j in range(1, len(points)):
         if points[j][0] <= points[j - 1][0]:
             raise InputError(f"{path}: key '{key}[{j}]': cycles must increase along the curve, "
@@ -193,11 +193,11 @@ def parse_conductor(doc: dict, path: str = "<conductor>") -> Conductor:
         raise InputError(f"{path}: key 'tension_n': give exactly one of tension_n and tension_pct_rts"
                          f" ({'both' if has_n else 'neither'} given)")
     if has_n:
-        tension = _number(path, "tension_n", doc["tension_n"], "pos")
+        tension = checked_number(path, "tension_n", doc["tension_n"], "pos")
         if tension >= v["rts_n"]:
             raise InputError(f"{path}: key 'tension_n': {tension:g} N is not below rts_n = {v['rts_n']:g} N")
     else:
-        pct = _number(path, "tension_pct_rts", doc["tension_pct_rts"], "pos")
+        pct = checked_number(path, "tension_pct_rts", doc["tension_pct_rts"], "pos")
         if pct >= 100:
             raise InputError(f"{path}: key 'tension_pct_rts': must be < 100, got {doc['tension_pct_rts']!r}")
         tension = pct / 100.0 * v["rts_n"]
@@ -228,10 +228,10 @@ def parse_conductor(doc: dict, path: str = "<conductor>") -> Conductor:
     fat = _table(doc, path, "fatigue")
     layers = _choice(fat, path, "layers", "fatigue.layers", _LAYERS, "multi")
     cycles = _get(fat, path, "design_cycles", "fatigue.design_cycles", "pos", 5e8)
-    limit = (_number(path, "fatigue.endurance_limit_pa", fat["endurance_limit_pa"], "pos")
+    limit = (checked_number(path, "fatigue.endurance_limit_pa", fat["endurance_limit_pa"], "pos")
              if "endurance_limit_pa" in fat else None)
     sn_curve = _sn_curve(fat["sn_curve"], path) if "sn_curve" in fat else ()
-    sn_limit = (_number(path, "fatigue.sn_endurance_limit_pa", fat["sn_endurance_limit_pa"], "pos")
+    sn_limit = (checked_number(path, "fatigue.sn_endurance_limit_pa", fat["sn_endurance_limit_pa"], "pos")
                 if "sn_endurance_limit_pa" in fat else None)
     return Conductor(
         name=name, description=description, source=path, tension_n=tension,

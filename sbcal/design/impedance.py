@@ -21,9 +21,9 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
-from .cable_run import (_cable_params, _geometry, _is_calibration_damper, _streams, _subset, _tolerance, _unit_draws,
-                        load_cable_run)
-from .predict import ModelError, _draw_checks, model_error_of
+from .cable_run import (cable_params, drawn_geometry, drawn_tolerances, is_calibration_damper, load_cable_run, streams,
+                        subset, unit_draws)
+from .predict import ModelError, draw_checks, model_error_of
 
 
 __all__ = ["CableImpedance", "impedance_from_cable"]
@@ -129,13 +129,13 @@ def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0,
     """
     cable = load_cable_run(run)
     damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
-    n_draws = _draw_checks(n_draws)
-    own = _is_calibration_damper(cable, damper)
-    pick, geo = _streams(seed)
-    idx = _subset(cable, n_draws, pick)
-    tolerance = _tolerance([damper], own)
-    params = dict(_cable_params(cable, idx, False, own),
-                  **_geometry(damper, tolerance, _unit_draws(tolerance, idx.size, geo)))
+    n_draws = draw_checks(n_draws)
+    own = is_calibration_damper(cable, damper)
+    pick, geo = streams(seed)
+    idx = subset(cable, n_draws, pick)
+    tolerance = drawn_tolerances([damper], own)
+    params = dict(cable_params(cable, idx, False, own),
+                  **drawn_geometry(damper, tolerance, unit_draws(tolerance, idx.size, geo)))
     errors = None
     if model_error and cable.summary.get("discrepancy") is not None:
         errors = model_error_of(cable)

@@ -21,11 +21,11 @@ from ..core.errors import InputError
 from ..core.plotting import pyplot, save_png
 from .conductor import Conductor
 from .span import SpanResult
-from .vibration import _SAFE_BORDER
+from .vibration import SAFE_BORDER
 
 
 __all__ = ["HOURS_PER_YEAR", "Climate", "parse_climate", "allowed_cycles", "life_endurance_limit", "Life",
-           "service_life", "plot_life"]
+           "service_life", "plot_life", "check_across"]
 
 HOURS_PER_YEAR = 8766.0
 """Hours in a year of 365.25 days (as pallas-dohl ``lifespan.damage_year``: 365.25 * 24 * 3600 s)."""
@@ -246,7 +246,7 @@ def allowed_cycles(stress_pa, conductor: Conductor) -> np.ndarray:
             y = np.where(x > ls[-1], ln[-1] + hi_slope * (x - ls[-1]), y)
             n = np.exp(y)
         else:
-            n0, a1, b1, a2, b2 = _SAFE_BORDER[conductor.fatigue_layers]
+            n0, a1, b1, a2, b2 = SAFE_BORDER[conductor.fatigue_layers]
             mpa = s * 1e-6
             n = np.where(mpa >= a1 * n0**b1, (mpa / a1) ** (1 / b1),
                          np.where(mpa <= a2 * n0**b2, (mpa / a2) ** (1 / b2), n0))
@@ -424,7 +424,8 @@ def _fmt(years) -> str:
     return f"{years:.0f}" if years >= 100 else f"{years:.3g}"
 
 
-def _check_across(across) -> float:
+def check_across(across) -> float:
+    """The share of the time the wind blows across the line, in (0, 1]; InputError otherwise."""
     ok = not isinstance(across, bool) and isinstance(across, (int, float, np.floating, np.integer))
     if not ok or not (0 < float(across) <= 1):
         raise InputError(f"--across: the share of the time the wind blows across the line must be in (0, 1], "
@@ -450,7 +451,7 @@ def service_life(result: SpanResult, climate, *, across: float = 1.0) -> Life:
     Life
     """
     clim = parse_climate(climate)
-    share = _check_across(across)
+    share = check_across(across)
     c, v, f = result.conductor, np.asarray(result.wind_mps, float), np.asarray(result.freq_hz, float)
     order = np.argsort(v, kind="stable")
     vs = v[order]

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from .conductor import Conductor
-from .span import Impedance, SpanResult, _jsonable, _positions, energy_balance
+from .span import Impedance, SpanResult, checked_positions, energy_balance, jsonable
 from .vibration import strouhal_band
 
 
@@ -56,9 +56,9 @@ class Placement:
                              "margin_median": self.margin_median})
 
     def to_dict(self) -> dict:
-        return {"positions_m": _jsonable(self.positions_m), "margin": _jsonable(self.margin),
-                "margin_median": _jsonable(self.margin_median), "quantile": self.quantile, "ends": self.ends,
-                "best_position_m": self.best_position_m, "best_margin": _jsonable(self.best_margin),
+        return {"positions_m": jsonable(self.positions_m), "margin": jsonable(self.margin),
+                "margin_median": jsonable(self.margin_median), "quantile": self.quantile, "ends": self.ends,
+                "best_position_m": self.best_position_m, "best_margin": jsonable(self.best_margin),
                 "suffices": self.suffices}
 
 
@@ -96,7 +96,7 @@ def optimise_position(conductor: Conductor, impedance: Impedance, positions_m=No
     if positions_m is None:
         positions_m = position_grid(conductor, ends=ends, wind=wind, n_freq=n_freq, freq_hz=freq_hz)
     pos = np.atleast_1d(np.asarray(positions_m, dtype=float))
-    _positions(conductor, pos, ends)
+    checked_positions(conductor, pos, ends)
     margins, medians, results = [], [], []
     for x in pos:
         r = energy_balance(conductor, impedance, float(x), ends=ends, wind=wind, n_freq=n_freq, freq_hz=freq_hz,

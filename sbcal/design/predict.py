@@ -62,13 +62,14 @@ import pandas as pd
 from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
 from .resonance import PROMINENCE, resonance_draws
-from .cable_run import (EXTRAPOLATION_MARGIN, CableRun, _cable_params, _geometry, _is_calibration_damper, _streams,
-                        _subset, _tolerance, _unit_draws, load_cable_run)
+from .cable_run import (EXTRAPOLATION_MARGIN, CableRun, cable_params, drawn_geometry, drawn_tolerances,
+                        is_calibration_damper, load_cable_run, streams, subset, unit_draws)
 
 
 __all__ = [
     "QUANTILES", "EXTRAPOLATION_MARGIN", "RESONANCE_STEP", "PROMINENCE", "ModelError", "model_error_of",
-    "Resonance", "Prediction", "predict",
+    "Resonance", "Prediction", "predict", "MODES", "clamp_amplitude", "evaluate", "nan_quantiles", "fine_grid",
+    "level_resonances", "FromCable", "from_cable_fields", "checked_levels", "checked_frequencies", "draw_checks",
 ]
 
 QUANTILES = (0.05, 0.5, 0.95)
@@ -79,10 +80,10 @@ RESONANCE_STEP = 0.005
 
 
 _CHUNK = 40_000  # (set, line) pairs per cable-model call: bounds the solver's scratch memory
-_MODES = {"amplitude": "amplitude_mm_pp", "velocity": "velocity_m_s"}
+MODES = {"amplitude": "amplitude_mm_pp", "velocity": "velocity_m_s"}
 # --- solving -----------------------------------------------------------------------------------------
 
-def _x0(mode: str, level: float, freq_hz):
+def clamp_amplitude(mode: str, level: float, freq_hz):
     """Clamp amplitude per line [m, 0-peak] of one test condition."""
     f = np.asarray(freq_hz, float)
     if mode == "amplitude":
@@ -90,7 +91,7 @@ def _x0(mode: str, level: float, freq_hz):
     return level / (2 * np.pi * f)
 
 
-def _evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_sets: int) -> dict:
+def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_sets: int) -> dict:
     """The cable at every (set, line) of one sweep, in chunks of sets (bounded memory).
 
     Returns ``fuu`` (S, F) complex (NaN where a set is outside the law's domain or Newton did not
@@ -112,13 +113,15 @@ def _evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_se
     return {"fuu": fuu, "cmax": cmax, "fold": fold, "converged": conv}
 
 
-def _quantiles(x, axis=0) -> np.ndarray:
+def nan_quantiles(x, axis=0) -> np.ndarray:
+    """The :data:`QUANTILES` of ``x`` along ``axis``, NaN left out (NaN where all are NaN)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN lines stay NaN
         return np.nanquantile(x, QUANTILES, axis=axis)
 
 
-def _fine_grid(freq_hz) -> np.ndarray:
+def fine_grid(freq_hz) -> np.ndarray:
+    """The resonance search grid [Hz]: the band of ``freq_hz`` in log steps of :data:`RESONANCE_STEP`."""
     lo, hi = float(np.min(freq_hz)), float(np.max(freq_hz))
     n = max(3, int(np.ceil(np.log(hi / lo) / RESONANCE_STEP)) + 1)
     return np.geomspace(lo, hi, n)
@@ -149,7 +152,7 @@ class Resonance:
     share: float
 
 
-def _resonances(f_fine, fuu, x0, level: float) -> list:
+def level_resonances(f_fine, fuu, x0, level: float) -> list:
     """Resonances (:func:`sbcal.design.resonance.resonance_draws`) from ``f_uu`` (S, F_fine) on the grid
     ``f_fine`` at clamp amplitudes ``x0`` (F_fine,) [m], summarised over the draws that have them."""
     out = []
@@ -157,7 +160,7 @@ def _resonances(f_fine, fuu, x0, level: float) -> list:
         has = np.isfinite(r["freq_hz"])
         if not has.any():
             continue
-        fq, pq = _quantiles(r["freq_hz"][has]), _quantiles(r["power_w"][has])
+        fq, pq = nan_quantiles(r["freq_hz"][has]), nan_quantiles(r["power_w"][has])
         out.append(Resonance(level=float(level), index=len(out) + 1, freq_hz=tuple(map(float, fq)),
                              power_w=tuple(map(float, pq)), share=float(has.mean())))
     return out
@@ -235,13 +238,14 @@ def _bands(fuu, x0, f, error, rng):
         e = rng.standard_normal((2, reps) + fuu.shape)
         # the phase error is added, not wrapped: about 180 deg it may pass it, as measured phases do
         mag, phase = (mag[None] * np.exp(e[0] * sd_m)).reshape(-1, f.size), (phase[None] + e[1] * sd_p).reshape(-1, f.size)
-    return (_quantiles(mag), _quantiles(np.degrees(phase)), _quantiles(0.5 * 2 * np.pi * f * mag * np.sin(phase) * x0**2))
+    return (nan_quantiles(mag), nan_quantiles(np.degrees(phase)),
+            nan_quantiles(0.5 * 2 * np.pi * f * mag * np.sin(phase) * x0**2))
 
 
 # --- the prediction ---------------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class _FromCable:
+class FromCable:
     """What a prediction (:class:`Prediction`) and a design sweep (:class:`sbcal.design.sweep.SweepResult`)
     share: the damper, the stored cable it is built with, the test conditions and the draws.
 
@@ -294,9 +298,9 @@ class _FromCable:
                 "warnings": list(self.warnings), "versions": self.versions}
 
 
-def _from_cable(cable: CableRun, damper: Damper, *, mode: str, levels, n_draws: int, seed: int, tolerance: dict,
-                own: bool, bench_effects: bool, notes=()) -> dict:
-    """The :class:`_FromCable` fields of a result computed from ``cable``; the warnings lead with the
+def from_cable_fields(cable: CableRun, damper: Damper, *, mode: str, levels, n_draws: int, seed: int,
+                      tolerance: dict, own: bool, bench_effects: bool, notes=()) -> dict:
+    """The :class:`FromCable` fields of a result computed from ``cable``; the warnings lead with the
     run's own (posterior not converged, no calibrated curvature range), then ``notes``."""
     from ..inference.runs import versions
 
@@ -308,9 +312,9 @@ def _from_cable(cable: CableRun, damper: Damper, *, mode: str, levels, n_draws: 
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class Prediction(_FromCable):
+class Prediction(FromCable):
     """The posterior predictive of a damper built with a calibrated cable (:func:`predict`): the
-    attributes of :class:`_FromCable` (the damper, the cable run, the conditions, the draws) and these.
+    attributes of :class:`FromCable` (the damper, the cable run, the conditions, the draws) and these.
 
     Attributes
     ----------
@@ -383,7 +387,8 @@ class Prediction(_FromCable):
         }
 
 
-def _levels(cable: CableRun, amplitude_mm_pp, velocity_m_s):
+def checked_levels(cable: CableRun, amplitude_mm_pp, velocity_m_s):
+    """``(mode, levels)``: amplitudes [mm p-p] or velocities [m/s], checked (default the run's constant ones)."""
     if amplitude_mm_pp is not None and velocity_m_s is not None:
         raise InputError("give amplitudes or velocities, not both")
     mode = "velocity" if velocity_m_s is not None else "amplitude"
@@ -403,7 +408,8 @@ def _levels(cable: CableRun, amplitude_mm_pp, velocity_m_s):
     return mode, v
 
 
-def _frequencies(freq_hz) -> np.ndarray:
+def checked_frequencies(freq_hz) -> np.ndarray:
+    """Frequencies [Hz] sorted and unique (the standard grid when None); InputError unless finite and > 0."""
     from ..model.fem import STANDARD_GRID_HZ
 
     if freq_hz is None:
@@ -414,7 +420,8 @@ def _frequencies(freq_hz) -> np.ndarray:
     return np.unique(f)  # one stepped-sine sweep up
 
 
-def _draw_checks(n_draws):
+def draw_checks(n_draws):
+    """The number of posterior draws as an int; InputError unless an integer >= 2."""
     if int(n_draws) != n_draws or n_draws < 2:
         raise InputError(f"draws: expected an integer >= 2, got {n_draws!r}")
     return int(n_draws)
@@ -458,12 +465,12 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     """
     cable = load_cable_run(run)
     damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
-    mode, levels = _levels(cable, amplitude_mm_pp, velocity_m_s)
-    f = _frequencies(freq_hz)
-    n_draws = _draw_checks(n_draws)
-    own = _is_calibration_damper(cable, damper)
-    pick, geo = _streams(seed)
-    idx = _subset(cable, n_draws, pick)
+    mode, levels = checked_levels(cable, amplitude_mm_pp, velocity_m_s)
+    f = checked_frequencies(freq_hz)
+    n_draws = draw_checks(n_draws)
+    own = is_calibration_damper(cable, damper)
+    pick, geo = streams(seed)
+    idx = subset(cable, n_draws, pick)
     n = idx.size
     errors, notes = None, []
     if model_error:
@@ -472,11 +479,11 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         except InputError as e:
             notes.append(f"no model error in the bands: {e}")
     noise = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
-    tolerance = _tolerance([damper], own)
-    params = dict(_cable_params(cable, idx, bench_effects, own),
-                  **_geometry(damper, tolerance, _unit_draws(tolerance, n, geo)))
+    tolerance = drawn_tolerances([damper], own)
+    params = dict(cable_params(cable, idx, bench_effects, own),
+                  **drawn_geometry(damper, tolerance, unit_draws(tolerance, n, geo)))
     effects = tuple(cable.summary.get("effects", ())) if bench_effects else ()
-    fine = _fine_grid(f)
+    fine = fine_grid(f)
     shape = (levels.size, f.size)
     out = {k: np.empty((levels.size, 3, f.size)) for k in ("stiffness", "phase", "power")}
     cmax, extra = np.empty(shape), np.zeros(shape, dtype=bool)
@@ -484,8 +491,8 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     amps = np.empty(shape)
     resonances = []
     for i, level in enumerate(levels):  # a handful of test conditions; each call is vectorised
-        x0 = _x0(mode, level, f)
-        r = _evaluate(cable.law, effects, damper, f, x0, params, n)
+        x0 = clamp_amplitude(mode, level, f)
+        r = evaluate(cable.law, effects, damper, f, x0, params, n)
         err = errors.at(2e3 * x0) if errors is not None else None
         out["stiffness"][i], out["phase"][i], out["power"][i] = _bands(r["fuu"], x0, f, err, noise)
         with warnings.catch_warnings():
@@ -494,16 +501,16 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         extra[i] = cable.range_status(cmax[i]) != 0
         fold[i], conv[i] = r["fold"].mean(axis=0), r["converged"].mean(axis=0)
         amps[i] = 2e3 * x0
-        xf = _x0(mode, level, fine)
-        rf = _evaluate(cable.law, effects, damper, fine, xf, params, n)
-        resonances += _resonances(fine, rf["fuu"], xf, level)
+        xf = clamp_amplitude(mode, level, fine)
+        rf = evaluate(cable.law, effects, damper, fine, xf, params, n)
+        resonances += level_resonances(fine, rf["fuu"], xf, level)
     if conv.min() < 1:
         notes.append(f"the cable model did not converge for {100 * (1 - conv.mean()):.2g} % of the (draw, line) "
                      "pairs: left out of the bands")
     values = {k: v for k, v in dataclasses.asdict(damper).items() if k not in ("tolerance",)}
     return Prediction(
-        **_from_cable(cable, damper, mode=mode, levels=levels, n_draws=n, seed=seed, tolerance=tolerance, own=own,
-                      bench_effects=bench_effects, notes=notes),
+        **from_cable_fields(cable, damper, mode=mode, levels=levels, n_draws=n, seed=seed, tolerance=tolerance,
+                            own=own, bench_effects=bench_effects, notes=notes),
         damper_values=values, freq_hz=f, amplitude_mm_pp=amps, stiffness_n_per_m=out["stiffness"],
         phase_deg=out["phase"], power_w=out["power"], curvature_max=cmax, extrapolated=extra, fold_share=fold,
         converged_share=conv, resonances=tuple(resonances),

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.plotting import pyplot, save_png
-from .predict import Prediction, _x0
+from .predict import Prediction, clamp_amplitude
 from .sweep import SweepResult
 
 
@@ -60,7 +60,7 @@ def plot_prediction(pred: Prediction, path, *, observed: dict | None = None) -> 
                                  capsize=3)
         if observed and lv in observed:
             fo, mo, po = (np.asarray(a, float) for a in observed[lv])
-            x0 = _x0(pred.mode, lv, fo)
+            x0 = clamp_amplitude(pred.mode, lv, fo)
             axes[0].plot(fo, mo, ".", color=color, mec="k", mew=0.4, ms=6)
             axes[1].plot(fo, po, ".", color=color, mec="k", mew=0.4, ms=6)
             axes[2].plot(fo, 0.5 * 2 * np.pi * fo * mo * np.sin(np.radians(po)) * x0**2, ".", color=color, mec="k",

@@ -13,7 +13,7 @@ from ..core.errors import InputError
 from ..inference.store import prediction_dir
 from .predict import Prediction, Resonance
 from .predict_plots import plot_prediction, plot_sweep
-from .sweep import SweepResult, _unjson
+from .sweep import SweepResult, unjson
 
 
 __all__ = [
@@ -106,13 +106,13 @@ def read_sweep(directory) -> SweepResult:
     s = _read_summary(directory, "sweep")
     try:
         nv, nl = len(s["values"]), len(s["levels"])
-        hz = _unjson(s["resonance_hz"]).reshape(nv, nl, -1, 3)
+        hz = unjson(s["resonance_hz"]).reshape(nv, nl, -1, 3)
         return SweepResult(
             damper=s["damper"], field=s["field"], values=np.asarray(s["values"], float), cable=s["cable"],
             cable_damper=s["cable_damper"], state=s["state"], law=s["law"], mode=s["mode"],
             levels=np.asarray(s["levels"], float), resonance_hz=hz,
-            resonance_share=_unjson(s["resonance_share"]).reshape(nv, nl, -1),
-            peak_power_w=_unjson(s["peak_power_w"]).reshape(nv, nl, 3),
+            resonance_share=unjson(s["resonance_share"]).reshape(nv, nl, -1),
+            peak_power_w=unjson(s["peak_power_w"]).reshape(nv, nl, 3),
             extrapolated=np.asarray(s["extrapolated"], bool), fold_share=np.asarray(s["fold_share"], float),
             n_draws=s["n_draws"], seed=s["seed"], tolerance_pct=s["tolerance_pct"], own_offsets=s["own_offsets"],
             bench_effects=s["bench_effects"], warnings=tuple(s["warnings"]), versions=s.get("versions", {}))

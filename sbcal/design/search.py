@@ -73,12 +73,12 @@ def _quantiles(x) -> dict:
 def _resonances_hz(imp, freq, amplitude_m) -> list:
     """Median frequencies [Hz] of the damper's resonances (the peaks of its resistance Im K*/omega,
     as ``sbcal predict`` finds them) at the clamp amplitude ``amplitude_m`` [m, 0-peak] over the band."""
-    from .predict import _resonances
+    from .predict import level_resonances
 
     fine = np.geomspace(freq.min(), freq.max(), 120)
     x0 = np.full(fine.size, amplitude_m)
     k = imp(fine, np.broadcast_to(x0, (1, fine.size)))
-    return [r.freq_hz[1] for r in _resonances(fine, k, x0, 2e3 * amplitude_m)]
+    return [r.freq_hz[1] for r in level_resonances(fine, k, x0, 2e3 * amplitude_m)]
 
 
 def _scored(result, position_m: float, damper: Damper, life=None) -> dict:
@@ -137,7 +137,7 @@ def evaluate_design(conductor: Conductor, cable, damper: Damper, *, objective: s
     from .impedance import impedance_from_cable
     from .life import service_life
     from .placement import optimise_position, position_grid
-    from .span_study import _law_range
+    from .span_study import law_range_check
 
     run = load_cable_run(cable)
     imp = impedance_from_cable(run, damper, n_draws=n_draws, seed=seed, model_error=model_error)
@@ -146,7 +146,7 @@ def evaluate_design(conductor: Conductor, cable, damper: Damper, *, objective: s
     r = place.best
     life = service_life(r, climate, across=across) if objective == "life" else None
     out = _scored(r, place.best_position_m, damper, life)
-    law_range, _ = _law_range(run, imp, r)
+    law_range, _ = law_range_check(run, imp, r)
     out["extrapolated"] = bool(law_range["extrapolated"] or law_range["below_range"])
     xd = np.nanmedian(r.damper_amplitude_m)
     out["resonances_hz"] = _resonances_hz(imp, r.freq_hz, xd) if np.isfinite(xd) and xd > 0 else []

@@ -30,11 +30,12 @@ from ..core.errors import InputError
 from ..model.damper import Damper
 from ..model.fem import dynamic_stiffness
 from .conductor import Conductor
-from .vibration import (_CIGRE_ZERO, _TABLE_SEARCH_MAX, _turbulence_factor, _wind_check, bending_amplitude,
-                        fatigue_limit, poffenberger_swart, strouhal_band, wind_curve_range, wind_power_curve)
+from .vibration import (CIGRE_ZERO, TABLE_SEARCH_MAX, bending_amplitude, fatigue_limit, poffenberger_swart,
+                        strouhal_band, turbulence_factor, wind_check, wind_curve_range, wind_power_curve)
 
 
-__all__ = ["Impedance", "FemImpedance", "STATUS", "energy_balance", "SpanResult"]
+__all__ = ["Impedance", "FemImpedance", "STATUS", "energy_balance", "SpanResult", "AMPLITUDE_FLOOR_M",
+           "checked_positions", "quantiles_90", "jsonable"]
 
 STATUS = ("ok", "extrapolated", "below_range", "no_solution")
 """Status codes of a balance: 0 root inside the wind curve's validity range; 1 root found outside
@@ -43,7 +44,7 @@ searched (Y_max reported as that amplitude, an upper bound); 3 the wind input ex
 dissipation up to the highest amplitude searched (no solution, Y_max NaN, margin 0)."""
 
 _WAVES = ("travelling", "standing")
-_AMPLITUDE_FLOOR_M = 1e-9  # a damper at a node sees X_d = 0; its K* is evaluated at 1 nm instead
+AMPLITUDE_FLOOR_M = 1e-9  # a damper at a node sees X_d = 0; its K* is evaluated at 1 nm instead
 
 class Impedance(Protocol):
     """A damper as the span sees it: its dynamic stiffness ``K* = F / X`` at the clamp.
@@ -78,7 +79,8 @@ class FemImpedance:
 # The balance
 
 
-def _positions(conductor: Conductor, position_m, ends) -> np.ndarray:
+def checked_positions(conductor: Conductor, position_m, ends) -> np.ndarray:
+    """Damper positions [m] from the span end as an array; InputError unless inside the span (or half of it)."""
     if ends not in (1, 2):
         raise InputError(f"ends: expected 1 (dampers at one span end) or 2 (both ends), got {ends!r}")
     try:
@@ -114,7 +116,7 @@ class _Balance:
         c = self.c = conductor
         self.freq, self.omega = freq, 2 * np.pi * freq
         d = c.diameter_m
-        self.a_w = c.span_length_m * freq**3 * d**4 * _turbulence_factor(c.turbulence_intensity)
+        self.a_w = c.span_length_m * freq**3 * d**4 * turbulence_factor(c.turbulence_intensity)
         self.a_c = c.span_length_m * c.self_damping_k * freq**c.self_damping_m / (c.tension_n * 1e-3) ** c.self_damping_n
         self.impedance, self.ends = impedance, ends
         self.by_clamp = impedance is not None and wave == "travelling"
@@ -135,7 +137,7 @@ class _Balance:
         """K* of shape (S, F) (or (1, F)) at clamp amplitudes (S or 1, F); checked. Amplitudes with a
         leading axis (K, S or 1, F) (a grid of trial states) give (K, S, F): in one call when the
         impedance has a ``stacked`` method of that signature, else one call per k."""
-        amplitude = np.maximum(amplitude, _AMPLITUDE_FLOOR_M)
+        amplitude = np.maximum(amplitude, AMPLITUDE_FLOOR_M)
         if np.ndim(amplitude) == 3:
             stacked = getattr(self.impedance, "stacked", None)
             k = (np.asarray(stacked(self.freq, amplitude)) if stacked is not None
@@ -251,7 +253,7 @@ def _solve(bal: _Balance, shape):
     c = bal.c
     d = c.diameter_m
     y_lo = 1e-4 * d
-    y_hi = d * (_CIGRE_ZERO if c.wind_curve == "cigre" else _TABLE_SEARCH_MAX)
+    y_hi = d * (CIGRE_ZERO if c.wind_curve == "cigre" else TABLE_SEARCH_MAX)
     scale = np.broadcast_to(bal.a_w, shape)  # g is divided by the wind scale: O(1) values
 
     def g_and_y(v):
@@ -333,16 +335,16 @@ def energy_balance(conductor: Conductor, impedance: Impedance | None = None, pos
         raise InputError(f"wave: expected one of {', '.join(_WAVES)}, got {wave!r}")
     if freq_hz is None:
         freq, wind_mps = strouhal_band(c, wind, n_freq)
-        warnings = _wind_check(wind)[2]
+        warnings = wind_check(wind)[2]
     else:
         freq = np.atleast_1d(np.asarray(freq_hz, dtype=float))
         if freq.ndim != 1 or freq.size == 0 or not np.all(np.isfinite(freq) & (freq > 0)):
             raise InputError("freq_hz: expected positive finite frequencies of shape (F,)")
         wind_mps = freq * c.diameter_m / c.strouhal
-        warnings = _wind_check((wind_mps.min(), wind_mps.max()), allow_single=True)[2]
+        warnings = wind_check((wind_mps.min(), wind_mps.max()), allow_single=True)[2]
     if (impedance is None) != (position_m is None):
         raise InputError("position_m: give it together with an impedance (a damper), or neither")
-    positions = _positions(c, position_m, ends) if impedance is not None else np.zeros(0)
+    positions = checked_positions(c, position_m, ends) if impedance is not None else np.zeros(0)
 
     bare = _Balance(c, freq, None, positions, ends)
     y_bare, st_bare, _, _ = _solve(bare, (1, freq.size))
@@ -382,12 +384,12 @@ def energy_balance(conductor: Conductor, impedance: Impedance | None = None, pos
     )
 
 
-def _q(a, axis=0):
+def quantiles_90(a, axis=0):
     """5 %, 50 %, 95 % quantiles over draws (NaN propagates: it marks an unsolved draw)."""
     return np.quantile(a, [0.05, 0.5, 0.95], axis=axis)
 
 
-def _jsonable(a):
+def jsonable(a):
     """A float or a list of floats, NaN and inf as None."""
     a = np.asarray(a, dtype=float)
     if a.ndim == 0:
@@ -490,12 +492,12 @@ class SpanResult:
         cols = {"frequency_hz": self.freq_hz, "wind_m_s": self.wind_mps, "wavelength_m": self.wavelength_m}
         for name, arr, unit in (("ymax", self.ymax_m, "m"), ("bending_amplitude", self.bending_amplitude_m, "m"),
                                 ("stress", self.stress_pa * 1e-6, "mpa")):
-            lo, mid, hi = _q(arr)
+            lo, mid, hi = quantiles_90(arr)
             cols |= {f"{name}_median_{unit}": mid, f"{name}_q05_{unit}": lo, f"{name}_q95_{unit}": hi}
         cols |= {"ymax_bare_m": self.ymax_bare_m, "bending_amplitude_bare_m": self.bending_amplitude_bare_m,
                  "stress_bare_mpa": self.stress_bare_pa * 1e-6}
         for name, arr in (("p_wind", self.p_wind_w), ("p_self", self.p_self_w), ("p_damper", self.p_damper_w)):
-            lo, mid, hi = _q(arr)
+            lo, mid, hi = quantiles_90(arr)
             cols |= {f"{name}_median_w": mid, f"{name}_q05_w": lo, f"{name}_q95_w": hi}
         cols["p_wind_bare_w"] = self.p_wind_bare_w  # = the bare span's self-damping at its balance
         for j in range(len(self.positions_m)):
@@ -519,11 +521,11 @@ class SpanResult:
                           "wind_curve": c.wind_curve, "self_damping": c.self_damping_label},
             "positions_m": list(self.positions_m), "ends": self.ends, "n_dampers": self.n_dampers, "wave": self.wave,
             "n_draws": self.n_draws, "limit_mpa": self.limit_pa * 1e-6,
-            "margin": {"median": _jsonable(np.median(m)), "q05": _jsonable(np.quantile(m, 0.05)),
-                       "q10": _jsonable(np.quantile(m, 0.1)), "q95": _jsonable(np.quantile(m, 0.95)),
-                       "median_db": _jsonable(20 * np.log10(np.median(m))) if np.median(m) > 0 else None},
-            "margin_bare": _jsonable(self.margin_bare),
-            "per_frequency": {k: (_jsonable(v.to_numpy(dtype=float)) if is_numeric_dtype(v) else [str(x) for x in v])
+            "margin": {"median": jsonable(np.median(m)), "q05": jsonable(np.quantile(m, 0.05)),
+                       "q10": jsonable(np.quantile(m, 0.1)), "q95": jsonable(np.quantile(m, 0.95)),
+                       "median_db": jsonable(20 * np.log10(np.median(m))) if np.median(m) > 0 else None},
+            "margin_bare": jsonable(self.margin_bare),
+            "per_frequency": {k: (jsonable(v.to_numpy(dtype=float)) if is_numeric_dtype(v) else [str(x) for x in v])
                               for k, v in frame.items()},
             "warnings": list(self.warnings),
         }

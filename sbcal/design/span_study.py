@@ -18,15 +18,15 @@ from ..inference.store import owner, span_dirs
 from ..model.damper import Damper
 from .cable_run import RANGE_STATUS
 from .conductor import Conductor
-from .life import Life, _check_across, parse_climate, plot_life, service_life
+from .life import Life, check_across, parse_climate, plot_life, service_life
 from .placement import Placement, optimise_position
-from .span import _AMPLITUDE_FLOOR_M, SpanResult, _jsonable, _positions, _q, energy_balance
-from .vibration import _wind_check
+from .span import AMPLITUDE_FLOOR_M, SpanResult, checked_positions, energy_balance, jsonable, quantiles_90
+from .vibration import wind_check
 
 
 __all__ = [
     "plot_span", "SpanStudy", "span_study", "span_dir", "store_span", "read_span",
-    "stored_spans",
+    "stored_spans", "law_range_check",
 ]
 
 # ---------------------------------------------------------------------------------------------
@@ -46,7 +46,7 @@ def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -
     ax = axes[0]
     ax.plot(f, r.ymax_bare_m / d, "k--", lw=1, label="no damper")
     if r.positions_m:
-        lo, mid, hi = _q(r.ymax_m / d)
+        lo, mid, hi = quantiles_90(r.ymax_m / d)
         ax.fill_between(f, lo, hi, color="C0", alpha=0.25)
         ax.plot(f, mid, color="C0", label=f"{label} (median, 90 %)")
     ax.set(yscale="log", xlabel="frequency [Hz]", ylabel="Y_max / D", title="Antinode amplitude")
@@ -54,7 +54,7 @@ def plot_span(result: SpanResult, path, *, placement: Placement | None = None) -
     ax = axes[1]
     ax.plot(f, r.stress_bare_pa * 1e-6, "k--", lw=1, label="no damper")
     if r.positions_m:
-        lo, mid, hi = _q(r.stress_pa * 1e-6)
+        lo, mid, hi = quantiles_90(r.stress_pa * 1e-6)
         ax.fill_between(f, lo, hi, color="C0", alpha=0.25)
         ax.plot(f, mid, color="C0", label="with dampers (median, 90 %)")
     ax.axhline(r.limit_pa * 1e-6, color="C3", lw=1, label=f"limit {r.limit_pa * 1e-6:.1f} MPa")
@@ -160,8 +160,8 @@ class SpanStudy:
         """Largest stress over the band [MPa]: with the dampers (median, 5 %, 95 % over draws) and bare."""
         r = self.result
         worst = r.limit_pa / r.margin * 1e-6  # margin = limit / max stress; an unsolved draw gives inf
-        return {"median": _jsonable(np.median(worst)), "q05": _jsonable(np.quantile(worst, 0.05)),
-                "q95": _jsonable(np.quantile(worst, 0.95)), "bare": _jsonable(r.limit_pa / r.margin_bare * 1e-6)}
+        return {"median": jsonable(np.median(worst)), "q05": jsonable(np.quantile(worst, 0.05)),
+                "q95": jsonable(np.quantile(worst, 0.95)), "bare": jsonable(r.limit_pa / r.margin_bare * 1e-6)}
 
     def worst_line(self) -> dict:
         """The line of the band with the largest stress: with the dampers (the largest median over
@@ -173,8 +173,8 @@ class SpanStudy:
         i = int(np.argmax(med)) if r.positions_m else int(np.nanargmax(r.stress_bare_pa))
         lo, mid, hi = np.quantile(s[:, i], [0.05, 0.5, 0.95]) * 1e-6
         return {"frequency_hz": float(r.freq_hz[i]), "wind_m_s": float(r.wind_mps[i]),
-                "stress_mpa": {"median": _jsonable(mid), "q05": _jsonable(lo), "q95": _jsonable(hi)},
-                "stress_bare_mpa": _jsonable(r.stress_bare_pa[i] * 1e-6)}
+                "stress_mpa": {"median": jsonable(mid), "q05": jsonable(lo), "q95": jsonable(hi)},
+                "stress_bare_mpa": jsonable(r.stress_bare_pa[i] * 1e-6)}
 
     def to_dict(self) -> dict:
         """JSON-ready: the source of the damper, :meth:`SpanResult.to_dict` and the placement."""
@@ -228,7 +228,7 @@ def _calibrated_amplitudes(run) -> tuple:
     return (min(amps), max(amps)) if amps else ()
 
 
-def _law_range(run, imp, result: SpanResult) -> tuple[dict, list]:
+def law_range_check(run, imp, result: SpanResult) -> tuple[dict, list]:
     """Where the dampers' states lie against the cable's calibrated curvature range.
 
     Per damper position and frequency, the median over draws of the largest curvature along its arms
@@ -238,7 +238,7 @@ def _law_range(run, imp, result: SpanResult) -> tuple[dict, list]:
     """
     xd = result.damper_amplitude_m  # (J, S, F) [m, 0-peak]; NaN where no balance was found
     # a damper at a node is evaluated at the floor amplitude, as the balance evaluates it
-    curv = np.array([imp.curvature_max(result.freq_hz, np.maximum(np.nan_to_num(x), _AMPLITUDE_FLOOR_M)) for x in xd])
+    curv = np.array([imp.curvature_max(result.freq_hz, np.maximum(np.nan_to_num(x), AMPLITUDE_FLOOR_M)) for x in xd])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a frequency no draw balanced stays NaN
         top = np.nanmedian(np.where(np.isfinite(xd), curv, np.nan), axis=1)  # (J, F)
@@ -320,9 +320,9 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
 
     c = conductor if isinstance(conductor, Conductor) else resolve_conductor(conductor)
     run, dmp = _damper_source(damper, cable)
-    _wind_check(wind)
+    wind_check(wind)
     if climate is not None:
-        climate, across = parse_climate(climate), _check_across(across)
+        climate, across = parse_climate(climate), check_across(across)
     if run is None:
         if position_m is not None:
             raise InputError("position: a bare span has no damper position; give a damper with it")
@@ -336,7 +336,7 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     for xs in (position_m, positions_m):
         if xs is not None:
             try:
-                _positions(c, xs, ends)
+                checked_positions(c, xs, ends)
             except InputError as e:
                 raise InputError(f"{c.source or c.name}: span_length_m = {c.span_length_m:g} m; {e}") from None
     notes = [w for w in (run.convergence_warning(), run.range_warning()) if w]
@@ -352,7 +352,7 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
                                       wave=wave)
     at = position_m if position_m is not None else placement.best_position_m
     r = energy_balance(c, imp, at, ends=ends, wind=wind, n_freq=n_freq, wave=wave)
-    law_range, law_notes = _law_range(run, imp, r)
+    law_range, law_notes = law_range_check(run, imp, r)
     curvature = tuple(float(v) for v in run.curvature_range) if np.all(np.isfinite(run.curvature_range)) else ()
     return SpanStudy(result=r, placement=placement, damper=dmp.name, cable=str(run.path), cable_damper=run.damper,
                      state=run.state, law=run.law, seed=int(seed), calibrated_amplitude_mm_pp=_calibrated_amplitudes(run),

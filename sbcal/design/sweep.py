@@ -12,13 +12,13 @@ import pandas as pd
 
 from ..core.errors import InputError
 from ..model.damper import FILE_KEYS, Damper, resolve_damper, with_value
-from .cable_run import (_cable_params, _geometry, _is_calibration_damper, _streams, _subset, _tolerance, _unit_draws,
-                        load_cable_run)
-from .predict import (_MODES, _draw_checks, _evaluate, _FromCable, _fine_grid, _from_cable, _frequencies, _levels,
-                      _quantiles, _resonances, _x0)
+from .cable_run import (cable_params, drawn_geometry, drawn_tolerances, is_calibration_damper, load_cable_run, streams,
+                        subset, unit_draws)
+from .predict import (MODES, FromCable, checked_frequencies, checked_levels, clamp_amplitude, draw_checks, evaluate,
+                      fine_grid, from_cable_fields, level_resonances, nan_quantiles)
 
 
-__all__ = ["TRACK_STEP", "parse_sweep", "SweepResult", "sweep"]
+__all__ = ["TRACK_STEP", "parse_sweep", "SweepResult", "sweep", "unjson"]
 
 # --- design sweeps ----------------------------------------------------------------------------------
 
@@ -41,9 +41,9 @@ def parse_sweep(spec: str) -> tuple[str, np.ndarray]:
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class SweepResult(_FromCable):
+class SweepResult(FromCable):
     """Resonances and peak dissipated power against one design variable (:func:`sweep`): the attributes
-    of :class:`sbcal.design.predict._FromCable` (``damper`` the base damper) and these.
+    of :class:`sbcal.design.predict.FromCable` (``damper`` the base damper) and these.
 
     Attributes
     ----------
@@ -76,7 +76,7 @@ class SweepResult(_FromCable):
     def to_frame(self) -> pd.DataFrame:
         """One row per (value, condition): ``resonance<k>_hz`` (median), ``_q05``, ``_q95``, ``_share``,
         ``peak_power_w`` (median), ``_q05``, ``_q95``, ``extrapolated``."""
-        level = _MODES[self.mode]
+        level = MODES[self.mode]
         rows = []
         for v, value in enumerate(self.values):
             for i, lv in enumerate(self.levels):
@@ -105,7 +105,8 @@ def _jsonable(a):
     return [_jsonable(x) for x in a] if a.ndim else (None if not np.isfinite(a) else float(a))
 
 
-def _unjson(x) -> np.ndarray:
+def unjson(x) -> np.ndarray:
+    """A float array from stored JSON (nested lists), None read as NaN."""
     return np.array(json.loads(json.dumps(x).replace("null", "NaN")), dtype=float)
 
 
@@ -174,18 +175,18 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
     if vals.ndim != 1 or vals.size == 0:
         raise InputError("sweep: expected one or more values")
     designs = [with_value(damper, field_key, v, where="sweep") for v in vals]  # checked as the file reader checks
-    mode, levels = _levels(cable, amplitude_mm_pp, velocity_m_s)
-    fine = _fine_grid(_frequencies(freq_hz))
-    n_draws = _draw_checks(n_draws)
-    own = _is_calibration_damper(cable, damper) and attr not in ("a1", "a2")
-    pick, geo = _streams(seed)
-    idx = _subset(cable, n_draws, pick)
+    mode, levels = checked_levels(cable, amplitude_mm_pp, velocity_m_s)
+    fine = fine_grid(checked_frequencies(freq_hz))
+    n_draws = draw_checks(n_draws)
+    own = is_calibration_damper(cable, damper) and attr not in ("a1", "a2")
+    pick, geo = streams(seed)
+    idx = subset(cable, n_draws, pick)
     n, nv = idx.size, vals.size
-    tolerance = _tolerance(designs, own)
-    units = _unit_draws(tolerance, n, geo)
-    per_value = [_geometry(d, tolerance, units) for d in designs]
+    tolerance = drawn_tolerances(designs, own)
+    units = unit_draws(tolerance, n, geo)
+    per_value = [drawn_geometry(d, tolerance, units) for d in designs]
     names = sorted(set().union(*per_value) | {attr})
-    params = {k: np.tile(v, nv) for k, v in _cable_params(cable, idx, bench_effects, own).items()}
+    params = {k: np.tile(v, nv) for k, v in cable_params(cable, idx, bench_effects, own).items()}
     for k in names:
         params[k] = np.concatenate([g.get(k, np.full(n, getattr(d, k))) for g, d in zip(per_value, designs)])
     effects = tuple(cable.summary.get("effects", ())) if bench_effects else ()
@@ -196,19 +197,19 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
     fold = np.zeros((nv, nl))
     conv = np.ones((nv, nl))
     for i, level in enumerate(levels):
-        xf = _x0(mode, level, fine)
-        r = _evaluate(cable.law, effects, damper, fine, xf, params, n * nv)
+        xf = clamp_amplitude(mode, level, fine)
+        r = evaluate(cable.law, effects, damper, fine, xf, params, n * nv)
         power = (0.5 * 2 * np.pi * fine * r["fuu"].imag * xf**2).reshape(nv, n, fine.size)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            peak[:, i] = _quantiles(np.nanmax(power, axis=2), axis=1).T
+            peak[:, i] = nan_quantiles(np.nanmax(power, axis=2), axis=1).T
             top = np.nanmedian(r["cmax"].reshape(nv, n, -1), axis=1)
         extra[:, i] = (cable.range_status(top) != 0).any(axis=1)
         fold[:, i] = r["fold"].reshape(nv, -1).mean(axis=1)
         conv[:, i] = r["converged"].reshape(nv, -1).mean(axis=1)
         fuu = r["fuu"].reshape(nv, n, fine.size)
         for v in range(nv):  # peak finding per design value (a handful); vectorised over the draws
-            res[v][i] = _resonances(fine, fuu[v], xf, level)
+            res[v][i] = level_resonances(fine, fuu[v], xf, level)
     tracks = [_tracks([res[v][i] for v in range(nv)]) for i in range(nl)]
     k_max = max((len(t) for t in tracks), default=0)
     hz = np.full((nv, nl, k_max, 3), np.nan)
@@ -220,7 +221,7 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
     notes = []
     if conv.min() < 1:
         notes.append(f"the cable model did not converge for {100 * (1 - conv.mean()):.2g} % of the (draw, line) pairs")
-    return SweepResult(**_from_cable(cable, damper, mode=mode, levels=levels, n_draws=n, seed=seed, tolerance=tolerance,
-                                     own=own, bench_effects=bench_effects, notes=notes),
+    return SweepResult(**from_cable_fields(cable, damper, mode=mode, levels=levels, n_draws=n, seed=seed,
+                                           tolerance=tolerance, own=own, bench_effects=bench_effects, notes=notes),
                        field=field_key, values=vals, resonance_hz=hz, resonance_share=share, peak_power_w=peak,
                        extrapolated=extra, fold_share=fold)

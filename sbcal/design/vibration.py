@@ -15,7 +15,8 @@ from .conductor import WIND_CURVES, Conductor
 
 __all__ = [
     "X_B", "strouhal_band", "wind_power_curve", "wind_curve_range", "bending_amplitude", "poffenberger_swart",
-    "safe_border_line", "fatigue_limit",
+    "safe_border_line", "fatigue_limit", "CIGRE_ZERO", "TABLE_SEARCH_MAX", "SAFE_BORDER", "wind_check",
+    "turbulence_factor",
 ]
 
 X_B = 0.089
@@ -29,7 +30,7 @@ _CIGRE_POLY = (-99.73, 101.62, 0.1627, 0.2256)
 # Above about one diameter the cubic falls to zero (at Y/D ~ 1.02); the seed (section 1.1) gives
 # one diameter as the usual largest aeolian amplitude, so Y/D <= 1 is taken as its validity.
 _CIGRE_RANGE = (0.0, 1.0)
-_CIGRE_ZERO = float(max(r.real for r in np.roots(_CIGRE_POLY) if abs(r.imag) < 1e-12 and r.real > 0))
+CIGRE_ZERO = float(max(r.real for r in np.roots(_CIGRE_POLY) if abs(r.imag) < 1e-12 and r.real > 0))
 
 # Digitised wind power curves, (Y/D, fnc) points: EPRI Orange Book tables A2.1-1 and A2.1-2 as
 # listed in pallas-dohl src/dohl/wind_power_data.yaml ("ampl", "power"; commit 45b6cb9).
@@ -45,12 +46,12 @@ _WIND_TABLES = {
                     (0.18, 0.60, 1.60, 4.00, 6.50, 9.00, 10.10, 10.70, 10.80)),
     "pon1989": ((0.01, 0.03, 0.06, 0.10, 0.20, 0.30), (0.04, 0.20, 0.60, 1.50, 3.00, 4.50)),
 }
-_TABLE_SEARCH_MAX = 2.0  # Y/D searched with a tabulated curve (extrapolated past its last point)
+TABLE_SEARCH_MAX = 2.0  # Y/D searched with a tabulated curve (extrapolated past its last point)
 
 # CIGRE safe border lines, (N0, a1, b1, a2, b2): sigma = a1 N^b1 [MPa] for N <= N0, else a2 N^b2.
 # EPRI Orange Book, "Safe Border Line Method" p. 3-30, as coded in pallas-dohl src/dohl/damage.py
 # (_slc, _mlc, lines 243-276, commit 45b6cb9).
-_SAFE_BORDER = {
+SAFE_BORDER = {
     "single": (2.0e7, 730.0, -0.20, 430.0, -0.17),
     "multi": (1.56e7, 450.0, -0.20, 263.0, -0.17),
 }
@@ -60,7 +61,7 @@ _SAFE_BORDER = {
 # The laws
 
 
-def _wind_check(wind, *, allow_single: bool = False) -> tuple[float, float, list[str]]:
+def wind_check(wind, *, allow_single: bool = False) -> tuple[float, float, list[str]]:
     """(min, max, warnings) of a wind band [m/s]; InputError outside the laws' range."""
     try:
         lo, hi = (float(w) for w in wind)
@@ -93,7 +94,7 @@ def strouhal_band(conductor: Conductor, wind=(1.0, 7.0), n_freq: int = 60):
     -------
     freq_hz, wind_mps : ndarray, shape (n_freq,)
     """
-    lo, hi, _ = _wind_check(wind)
+    lo, hi, _ = wind_check(wind)
     if int(n_freq) != n_freq or n_freq < 2:
         raise InputError(f"n_freq: expected an integer >= 2, got {n_freq!r}")
     v = np.linspace(lo, hi, int(n_freq))
@@ -142,7 +143,8 @@ def wind_power_curve(yd, curve: str = "cigre") -> np.ndarray:
     return _TABLE_FNC[curve](yd)
 
 
-def _turbulence_factor(iv: float) -> float:
+def turbulence_factor(iv: float) -> float:
+    """Factor (0, 1] by which turbulence intensity ``iv`` scales the wind power input."""
     # Foti & Martinelli (2018) eq. (5) as coded in pallas-dohl ebp.py line 43: I_L = 0.09
     return 1.0 / math.sqrt(1.0 + (iv / 0.09) ** 2)
 
@@ -196,9 +198,9 @@ def safe_border_line(n_cycles, layers: str = "multi") -> np.ndarray:
     ``layers`` is ``"single"`` (single aluminium layer ACSR: 730 N^-0.2 MPa up to 2e7 cycles,
     430 N^-0.17 beyond) or ``"multi"`` (450 N^-0.2 up to 1.56e7, 263 N^-0.17 beyond).
     """
-    if layers not in _SAFE_BORDER:
-        raise InputError(f"layers: expected one of {', '.join(_SAFE_BORDER)}, got {layers!r}")
-    n0, a1, b1, a2, b2 = _SAFE_BORDER[layers]
+    if layers not in SAFE_BORDER:
+        raise InputError(f"layers: expected one of {', '.join(SAFE_BORDER)}, got {layers!r}")
+    n0, a1, b1, a2, b2 = SAFE_BORDER[layers]
     n = np.asarray(n_cycles, dtype=float)
     return 1e6 * np.where(n <= n0, a1 * n**b1, a2 * n**b2)
 

@@ -45,10 +45,11 @@ from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
-from .fits import DiagnoseConfig, _choose_law, _jobs, _name, _run_fits, _zoned_law, posterior_record
+from .fits import DiagnoseConfig, choose_law, fit_jobs, model_name, posterior_record, run_fits, zoned_law
 from .remainder import remainder
-from .locate import _band_excess, _band_rms, _bands, _rocking_signature, _screen, _signatures, _statistics
-from .words import _parameters
+from .locate import (band_excess, band_rms, off_bands, rocking_signature, screen_effects, signatures,
+                     structure_statistics)
+from .words import effect_parameters
 
 
 __all__ = ["DiagnoseConfig", "diagnose", "curves_frame"]
@@ -58,7 +59,7 @@ __all__ = ["DiagnoseConfig", "diagnose", "curves_frame"]
 @dataclass(frozen=True)
 class _Case:
     """One damper's diagnosis: its tests, their baseline likelihoods (the run means every check
-    standardises), the settings, and how fits are made (:func:`sbcal.diagnosis.fits._jobs`)."""
+    standardises), the settings, and how fits are made (:func:`sbcal.diagnosis.fits.fit_jobs`)."""
 
     damper: Damper
     data: object
@@ -75,12 +76,12 @@ class _Case:
 
     def fit(self, models, stage: str, starts=None) -> dict:
         """Fit ``models`` (``(primary, secondary effects)`` pairs) in one batch of jobs; ``{key: fit}``
-        (``starts``: a cable fit's start per cable state, as :func:`sbcal.diagnosis.fits._jobs` takes)."""
+        (``starts``: a cable fit's start per cable state, as :func:`sbcal.diagnosis.fits.fit_jobs` takes)."""
         jobs = []
         for primary, secondary in models:
-            jobs += _jobs(primary, secondary, damper=self.damper, data=self.data, tests=self.tests, seed=self.seed,
-                          config=self.config, prior_path=self.prior_path, starts=starts)
-        return _run_fits(jobs, self.config, self.label(stage))
+            jobs += fit_jobs(primary, secondary, damper=self.damper, data=self.data, tests=self.tests,
+                             seed=self.seed, config=self.config, prior_path=self.prior_path, starts=starts)
+        return run_fits(jobs, self.config, self.label(stage))
 
     def label(self, stage: str) -> str | None:
         return f"diagnose {self.damper.name}: {stage}" if self.progress else None
@@ -123,7 +124,7 @@ def _summary(name, fits, *, keys, check, bands, tests, ref_i=None) -> dict:
            "lines_off": int(sum(np.sum(np.abs(zt) > th) for zt, th in zip(z, thr))),
            "n_lines": int(sum(zt.size for zt in z)),
            "rms_z": float(np.sqrt(np.mean(np.concatenate([zt.ravel() for zt in z]) ** 2))),
-           "band_rms_z": _band_rms(bands, tests, z),
+           "band_rms_z": band_rms(bands, tests, z),
            "global": glob,
            "converged": all(fits[k]["converged"] for k in keys),
            "r_hat_max": max(fits[k]["convergence"]["r_hat_max"] for k in keys),
@@ -141,14 +142,14 @@ def _misfit(bands, tests, check, *, global_part: bool) -> float:
 
     ``check`` is a model's :func:`_check_model`; ``bands`` and ``global_part`` say where the misfit is (the
     reference model's bands, and whether its global check failed), so that two models are measured on the
-    same lines. The bands' squared z beyond chance (:func:`sbcal.diagnosis.locate._band_excess`: an isolated
+    same lines. The bands' squared z beyond chance (:func:`sbcal.diagnosis.locate.band_excess`: an isolated
     off line only by how far it passes what chance gives for the largest of all lines); with ``global_part``,
     added, the excess over chance of the lines outside the bands: their squared normal scores (what the
     global check sums) less their share of its degrees of freedom, floored at 0. Without bands and with the
     global part it is the global excess ``chi2 - dof``.
     """
     z, thr, _, _, glob, c = check
-    total, inside = _band_excess(bands, tests, z, thr)
+    total, inside = band_excess(bands, tests, z, thr)
     if global_part:
         u2 = np.concatenate([np.ravel(s) ** 2 for s in c.scores])
         out = ~np.concatenate([m.ravel() for m in inside])
@@ -174,7 +175,7 @@ def _compare(candidates, spec_of, fits_all, *, ref_check, bands, case: _Case):
     ranking, summaries, checks, kept, laws = [], {}, {}, {}, {}
     for e in candidates:
         name = spec_of(e)
-        keys_fits, comparison = _choose_law(fits_all, name)
+        keys_fits, comparison = choose_law(fits_all, name)
         kept[e] = keys_fits
         keys = sorted(keys_fits)
         checks[e] = _check_model(keys_fits, keys, case)
@@ -261,26 +262,27 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
         if e not in EXTENSIONS:
             raise InputError(f"unknown effect {e!r}; known: {', '.join(EXTENSIONS)}")
     # 1-2. baseline and locate
-    jobs = _jobs("baseline", (), damper=damper, data=data, tests=tests, seed=seed, config=config, prior_path=prior_path)
+    jobs = fit_jobs("baseline", (), damper=damper, data=data, tests=tests, seed=seed, config=config,
+                    prior_path=prior_path)
     case = _Case(damper, data, tuple(tests), tuple(j.target for j in jobs), config, seed, prior_path, progress)
     likes = case.likes
-    fits = _run_fits(jobs, config, case.label("per-test fits"))
+    fits = run_fits(jobs, config, case.label("per-test fits"))
     base_fits = {k[1]: v for k, v in fits.items()}
     base_keys = [("baseline", t) for t in tests]
     n_runs = case.n_runs
     base_check = _check_model(fits, base_keys, case)
     z0, thr0, _, base_i, glob0, _ = base_check
-    bands = _bands(tests, likes, z0, thr0)
+    bands = off_bands(tests, likes, z0, thr0)
     misfit = qualifier(base_check[5], config.global_alpha) == "partial"  # the rule that judges what a model leaves
-    statistics = _statistics(damper, tests, likes, base_fits, z0)
-    screen = _screen(statistics, config, EXTENSIONS)
+    statistics = structure_statistics(damper, tests, likes, base_fits, z0)
+    screen = screen_effects(statistics, config, EXTENSIONS)
     before = _summary("baseline", fits, keys=base_keys, check=base_check, bands=bands, tests=tests)
 
     # 3. name: refit the screened candidates
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
     if candidates:
         fits.update(case.fit([(e, ()) for e in candidates], f"{len(candidates)} candidate extension(s)"))
-    law, starts = _zoned_law(fits, "strand_slip", config) if "strand_slip" in candidates else (None, None)
+    law, starts = zoned_law(fits, "strand_slip", config) if "strand_slip" in candidates else (None, None)
     if law is not None:  # the uniform law leaves a misfit: its law changing along the arm, from the uniform one
         fits.update(replace(case, config=replace(config, laws=(law,))).fit([("strand_slip", ())], f"zoned law {law}",
                                                                            starts=starts))
@@ -322,7 +324,8 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
                                         shown=(checks[verdict], shown_fits) if verdict in EXTENSIONS else None,
                                         final=final, secondary=secondary)
 
-    parameters = _parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown else {}
+    parameters = (effect_parameters(shown, shown_fits, sorted(shown_fits), base_fits[tests[0]]["names"]) if shown
+                  else {})
     cables = _cable_fits(damper, shown_fits)
     curves = _curves(case, fits, base_keys, shown, shown_fits, curve_sd,
                      harmonics=[fit.harmonics for fit in cables.values()])
@@ -370,16 +373,16 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> tuple[dict,
     with it when one is named (``(effect, check, fits)``), else None."""
     tests, likes, config = case.tests, case.likes, case.config
     z1, thr1, _, _, glob1, _ = primary_check
-    bands1 = _bands(tests, likes, z1, thr1)
+    bands1 = off_bands(tests, likes, z1, thr1)
     misfit = qualifier(primary_check[5], config.global_alpha) == "partial"
     joint = primary == "strand_slip"
     mean, var, _ = _model_curves(primary_fits, sorted(primary_fits))
-    sig = _signatures(tests, likes, [mean[t] for t in tests], [var[t] for t in tests], z1)
+    sig = signatures(tests, likes, [mean[t] for t in tests], [var[t] for t in tests], z1)
     options = _composable(primary)
-    screen = _screen(sig, config, options)
+    screen = screen_effects(sig, config, options)
     if joint and "base_rocking" in options:
         # no shape of its own to test the residuals for: the share its linearisation explains
-        share, value = _rocking_signature(primary_fits, tests, likes, mean, var)
+        share, value = rocking_signature(primary_fits, tests, likes, mean, var)
         sig["rocking_linear"] = {"share": share, "rocking_rad_per_m": value}
         screen["base_rocking"] = {"kept": share >= config.screen_share,
                                   "why": f"share of the misfit explained by the linearised rocking {share:.2f}"}
@@ -392,7 +395,7 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> tuple[dict,
         case = replace(case, config=replace(config, laws=(next(iter(primary_fits.values()))["law"],)))
     fits = case.fit([(primary, (e,)) for e in candidates], f"secondary: {len(candidates)} candidate(s)")
     fits.update(primary_fits)
-    ranking, summaries, checks, kept, _ = _compare(candidates, lambda e: _name(primary, (e,)), fits,
+    ranking, summaries, checks, kept, _ = _compare(candidates, lambda e: model_name(primary, (e,)), fits,
                                                    ref_check=primary_check, bands=bands1, case=case)
     choice = _decide(True, ranking, config)
     out["ranking"] = ranking
@@ -403,7 +406,7 @@ def _secondary(primary, primary_fits, primary_check, case: _Case) -> tuple[dict,
     if choice in options:
         out["effect"] = choice
         base_names = tuple(n for n in next(iter(primary_fits.values()))["names"])
-        out["parameters"] = _parameters(choice, kept[choice], sorted(kept[choice]), base_names, each_test=True)
+        out["parameters"] = effect_parameters(choice, kept[choice], sorted(kept[choice]), base_names, each_test=True)
         out["residuals"] = {t: {"z_before": zb.tolist(), "z_after": za.tolist()}
                             for t, zb, za in zip(tests, z1, checks[choice][0])}
         return out, (choice, checks[choice], kept[choice])
@@ -426,11 +429,11 @@ def _what_is_left(verdict, case: _Case, *, base_check, base_mean, bands, ranking
     name, check, fits, added = verdict, shown[0], shown[1], None
     if final is not None:
         added, check, fits = final
-        name = _name(verdict, (added,))
+        name = model_name(verdict, (added,))
     mean, var, _ = _model_curves(fits, sorted(fits))
     c = check[5]
     rem = remainder(name, c, base_check[5], tests=tests, likes=likes, model_mean=mean,
-                    bands=_bands(tests, likes, c.z, c.thresholds), tried=(secondary or {}).get("ranking", []),
+                    bands=off_bands(tests, likes, c.z, c.thresholds), tried=(secondary or {}).get("ranking", []),
                     config=case.config, explained_by=added, screen=(secondary or {}).get("screen"))
     disc = discrepancy(likes, [mean[t] for t in tests], [var[t] for t in tests], partial=rem["qualifier"] == "partial")
     if rem["qualifier"] == "partial":  # is it material? (docs/diagnose.md, "Complete within")

@@ -23,9 +23,10 @@ from ..model.hysteresis import FITTED_LAWS
 from ..model.zones import ZONED_SUFFIX
 
 
-__all__ = ["DiagnoseConfig", "posterior_record"]
+__all__ = ["DiagnoseConfig", "posterior_record", "CURVE_QUANTITIES", "model_name", "fit_jobs", "run_fits", "choose_law",
+           "zoned_law"]
 
-_QUANTITIES = ("magnitude", "phase")
+CURVE_QUANTITIES = ("magnitude", "phase")
 
 
 @dataclass(frozen=True)
@@ -96,11 +97,12 @@ class DiagnoseConfig:
 
 # --- models: a primary effect, maybe with secondary ones on top ----------------------------------
 
-def _name(primary: str, secondary=()) -> str:
+def model_name(primary: str, secondary=()) -> str:
+    """A model's name: its primary effect and secondary ones joined by ``+``."""
     return "+".join((primary,) + tuple(secondary))
 
 
-def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path, starts=None) -> list:
+def fit_jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path, starts=None) -> list:
     """Fit jobs of one model: one per test, or for strand slip one per cable state and law family.
 
     A job is a :class:`FitJob`: key ``(model name, test)`` or ``(model name, state, law)``; the stream
@@ -108,7 +110,7 @@ def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path, 
     ``sbcal cable``'s), so no fit's draws depend on which other fits run. ``starts``: a cable fit's start
     per cable state (natural values by name; default the cable start search).
     """
-    name = _name(primary, secondary)
+    name = model_name(primary, secondary)
     jobs = []
     if primary == "strand_slip":
         for state, members in sorted(state_tests(tests).items()):
@@ -132,7 +134,7 @@ def _jobs(primary, secondary, *, damper, data, tests, seed, config, prior_path, 
 class FitJob:
     """One fit of the diagnosis (picklable: it travels to a worker process).
 
-    Built by :func:`_jobs` for one model, run by :func:`_fit`, read back by :func:`_posterior`.
+    Built by :func:`fit_jobs` for one model, run by :func:`_fit`, read back by :func:`_posterior`.
 
     Attributes
     ----------
@@ -187,7 +189,7 @@ def posterior_record(like, tests, res) -> dict:
                 result=res, like=like, n_params=like.prior.ndim, tests=tuple(tests), loo=loo(res.log_likelihood))
 
 
-def _run_fits(jobs, config, label) -> dict:
+def run_fits(jobs, config, label) -> dict:
     """Run fits, ``config.workers`` at a time (the costly cable fits first); ``{key: fit}``. A batch of
     fewer fits than workers (a zoned law's one cable state) runs each fit's ensembles in parallel instead."""
     jobs = sorted(jobs, key=lambda j: not isinstance(j.target, JointLikelihood))
@@ -197,7 +199,7 @@ def _run_fits(jobs, config, label) -> dict:
     return {job.key: _posterior(job, res) for job, res in zip(jobs, done)}
 
 
-def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
+def choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
     """For a cable model, keep the best family's fits (by PSIS-LOO summed over cable states):
     ``{(name, state): fit}``, and the comparison (None for per-test models)."""
     cable = {k: f for k, f in fits.items() if k[0] == name and len(k) == 3}
@@ -213,12 +215,12 @@ def _choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
     return kept, comparison
 
 
-def _zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | None, dict | None]:
+def zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | None, dict | None]:
     """The zoned family to fit next for the cable model ``name`` (:func:`sbcal.inference.cable_fit.zoned_candidate`:
     the highest-ELPD family's, converged or not, when the best converged family leaves a misfit in a cable
     state by the diagnosis's own rule, or none converged), and its start per cable state
     (:func:`sbcal.inference.cable_fit.zoned_start` from that family's fits); ``(None, None)`` when none."""
-    kept, comparison = _choose_law(fits, name)
+    kept, comparison = choose_law(fits, name)
     if comparison is None:
         return None, None
     partial = any(qualifier(predictive_check(f["like"].likes, f["mu_mean"], f["mu_var"], config.alpha, f["n_params"]),

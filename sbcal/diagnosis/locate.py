@@ -9,19 +9,20 @@ from scipy import stats
 from ..data.labels import state_tests
 from ..model.extensions import EXTENSIONS
 from ..model.fem import arm_curvatures
-from .fits import _QUANTITIES, DiagnoseConfig
+from .fits import CURVE_QUANTITIES, DiagnoseConfig
 
 
-__all__ = []
+__all__ = ["off_bands", "band_excess", "band_rms", "signatures", "rocking_signature", "structure_statistics",
+           "screen_effects"]
 
 # --- locate --------------------------------------------------------------------------------------
 
-def _bands(tests, likes, z, thr) -> list:
+def off_bands(tests, likes, z, thr) -> list:
     """Neighbouring off lines (a gap of one line allowed) as bands, per test and quantity."""
     bands = []
     for t, lk, zt, th in zip(tests, likes, z, thr):
         th = np.broadcast_to(th, zt.shape)
-        for q, name in enumerate(_QUANTITIES):
+        for q, name in enumerate(CURVE_QUANTITIES):
             off = np.flatnonzero(np.abs(zt[q]) > th[q])
             if off.size == 0:
                 continue
@@ -33,7 +34,7 @@ def _bands(tests, likes, z, thr) -> list:
     return bands
 
 
-def _band_excess(bands, tests, z, thr) -> tuple[float, list]:
+def band_excess(bands, tests, z, thr) -> tuple[float, list]:
     """The squared z of the bands beyond chance, and their lines (per test a mask ``(2, n_freq)``).
 
     Per band, floored at 0: a band of several lines counts its lines' z^2 less their expectation under
@@ -45,7 +46,7 @@ def _band_excess(bands, tests, z, thr) -> tuple[float, list]:
     inside = [np.zeros(np.shape(zt), bool) for zt in z]
     total = 0.0
     for b in bands:
-        i, q, lines = index[b["test"]], _QUANTITIES.index(b["quantity"]), b["lines"]
+        i, q, lines = index[b["test"]], CURVE_QUANTITIES.index(b["quantity"]), b["lines"]
         inside[i][q, lines] = True
         z2 = z[i][q, lines] ** 2
         chance = np.broadcast_to(thr[i], np.shape(z[i]))[q, lines] ** 2 if len(lines) == 1 else np.ones(len(lines))
@@ -53,9 +54,10 @@ def _band_excess(bands, tests, z, thr) -> tuple[float, list]:
     return total, inside
 
 
-def _band_rms(bands, tests, z) -> list:
+def band_rms(bands, tests, z) -> list:
+    """RMS z over the lines of each band, in the order of ``bands``."""
     index = {t: i for i, t in enumerate(tests)}
-    return [float(np.sqrt(np.mean(z[index[b["test"]]][_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2)))
+    return [float(np.sqrt(np.mean(z[index[b["test"]]][CURVE_QUANTITIES.index(b["quantity"]), b["lines"]] ** 2)))
             for b in bands]
 
 
@@ -69,7 +71,7 @@ def _share(resid, weight_sq, regressor) -> tuple[float, float]:
     return float(max(0.0, 1 - np.sum(w * (resid - c * regressor) ** 2) / np.sum(w * resid * resid))), float(c)
 
 
-def _signatures(tests, likes, mu_mean, mu_var, z) -> dict:
+def signatures(tests, likes, mu_mean, mu_var, z) -> dict:
     """Statistics of a model's residuals that point at measurement-chain effects."""
     ac = [np.corrcoef(zt[q, :-1], zt[q, 1:])[0, 1] for zt in z for q in (0, 1) if zt.shape[1] > 2 and np.std(zt[q]) > 0]
     out = {"lag1_correlation": float(np.nanmean(ac)) if ac else 0.0}
@@ -88,7 +90,7 @@ def _signatures(tests, likes, mu_mean, mu_var, z) -> dict:
     return out
 
 
-def _rocking_signature(fits, tests, likes, mean, var, h: float = 0.05) -> tuple[float, float]:
+def rocking_signature(fits, tests, likes, mean, var, h: float = 0.05) -> tuple[float, float]:
     """Share of a cable model's misfit that clamp rocking explains to first order, and its value [rad/m].
 
     The regressor is ``d ln f / d r`` at ``r = 0`` of the verdict's cable model at its posterior median
@@ -116,9 +118,9 @@ def _rocking_signature(fits, tests, likes, mean, var, h: float = 0.05) -> tuple[
     return _share(np.concatenate(r_all), np.concatenate(w_all), x)
 
 
-def _statistics(damper, tests, likes, fits, z) -> dict:
+def structure_statistics(damper, tests, likes, fits, z) -> dict:
     """The structure statistics of the baseline's residuals (module docstring)."""
-    out = _signatures(tests, likes, [fits[t]["mu_mean"][0] for t in tests], [fits[t]["mu_var"][0] for t in tests], z)
+    out = signatures(tests, likes, [fits[t]["mu_mean"][0] for t in tests], [fits[t]["mu_var"][0] for t in tests], z)
     trend = {}  # EJ trend with amplitude within each cable state (constant-amplitude tests)
     for g, members in sorted(state_tests(tests).items()):
         amp, ej = [], []
@@ -164,6 +166,6 @@ def _screen_one(eid, stat, config) -> tuple[bool, str]:
     return stat["lag1_correlation"] >= config.screen_corr, f"lag-1 correlation of the residuals {stat['lag1_correlation']:.2f}"
 
 
-def _screen(stat: dict, config: DiagnoseConfig, effects) -> dict:
+def screen_effects(stat: dict, config: DiagnoseConfig, effects) -> dict:
     """Which extensions the structure statistics admit, and why."""
     return {e: dict(zip(("kept", "why"), _screen_one(e, stat, config))) for e in effects}

@@ -101,7 +101,7 @@ def remainder(model: str | None, check, base_check, *, tests, likes, model_mean,
     model_mean : dict
         Per test, the posterior mean of the model's curves ``(2, n_freq)``.
     bands : list of dict
-        The model's bands of off lines (:func:`sbcal.diagnosis.locate._bands`).
+        The model's bands of off lines (:func:`sbcal.diagnosis.locate.off_bands`).
     tried : list of dict
         The effects refitted on this remainder (``effect``, ``explained``, ...), best first.
     config : DiagnoseConfig

@@ -10,7 +10,7 @@ import numpy as np
 from ..inference.likelihood import JointLikelihood
 
 
-__all__ = []
+__all__ = ["effect_parameters"]
 
 # --- parameters in words -------------------------------------------------------------------------
 
@@ -28,7 +28,7 @@ _UNITS = {"EJ_min": "N m^2", "delta_EJ": "N m^2", "chi_slip": "1/m", "chi_micro"
 def _scale_factor(estimates, se) -> float:
     """The Birge ratio of estimates of one value: ``sqrt(chi2 / (K - 1))`` about their precision-weighted
     mean (1 for one estimate). Above 1 they disagree beyond their errors; the Particle Data Group then
-    widens the combined error by it, as :func:`_combined` and :func:`_parameters` do."""
+    widens the combined error by it, as :func:`_combined` and :func:`effect_parameters` do."""
     m, s = np.asarray(estimates, float), np.maximum(np.asarray(se, float), 1e-300)
     if m.size < 2:
         return 1.0
@@ -69,7 +69,7 @@ def _test_estimates(fit: dict, name: str, tests) -> dict:
     return out
 
 
-def _parameters(effect: str, fits: dict, keys, baseline_names, *, each_test: bool = False) -> dict:
+def effect_parameters(effect: str, fits: dict, keys, baseline_names, *, each_test: bool = False) -> dict:
     """The extension's own parameters with 90 % intervals, and what they mean on the bench.
 
     A value shared by several tests or cable states comes with its ``scale_factor``

@@ -22,7 +22,7 @@ from ..model.fem import PARAMETER_NAMES
 
 
 __all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "composed_prior",
-           "cable_prior"]
+           "cable_prior", "default_path"]
 
 _DISTS = ("uniform", "loguniform")
 _MODEL_ERROR = ("sigma_mag", "sigma_phase")
@@ -138,13 +138,14 @@ class Prior:
             for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
 
 
-def _default_path(name="default.toml"):
+def default_path(name="default.toml"):
+    """The bundled prior file ``name`` (a resource in ``sbcal/priors``)."""
     return resources.files("sbcal") / "priors" / name
 
 
 def _read(path, bundled="default.toml") -> tuple[dict, str]:
     if path is None:
-        with resources.as_file(_default_path(bundled)) as p:
+        with resources.as_file(default_path(bundled)) as p:
             return read_toml(p), f"priors/{bundled}"
     return read_toml(path), str(Path(path))
 

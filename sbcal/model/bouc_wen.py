@@ -15,7 +15,7 @@ from scipy.interpolate import RectBivariateSpline
 from scipy.optimize import brentq
 
 from . import law_kernels
-from .law_base import _DELTA_EJ, HysteresisLaw, LawParameter
+from .law_base import DELTA_EJ, HysteresisLaw, LawParameter
 
 
 __all__ = ["DahlLaw", "BoucWenLaw"]
@@ -41,7 +41,7 @@ class DahlLaw(HysteresisLaw):
 
     name: ClassVar[str] = "dahl"
     parameters: ClassVar[tuple] = (
-        _DELTA_EJ,
+        DELTA_EJ,
         LawParameter("chi_dahl", "1/m", "Dahl curvature: the slip moment saturates at delta_EJ chi_dahl"),
     )
 
@@ -458,7 +458,7 @@ class BoucWenLaw(HysteresisLaw):
 
     name: ClassVar[str] = "bouc_wen"
     parameters: ClassVar[tuple] = (
-        _DELTA_EJ,
+        DELTA_EJ,
         LawParameter("chi_slip", "1/m", "Bouc-Wen curvature: the slip moment saturates at delta_EJ chi_slip"),
         LawParameter("sharpness", "1", f"Bouc-Wen exponent n in [{_BW_SHARPNESS[0]}, {_BW_SHARPNESS[1]}]: "
                      "sharpness of the stick-slip knee; micro-slip W ~ chi_a^(n+2)",

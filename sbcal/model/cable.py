@@ -39,14 +39,14 @@ import numpy as np
 
 from ..core.errors import InputError
 from . import cable_kernel
-from .cable_sections import (_TINY, _Arms, _Compliance, _compliance_table, _gauss, _grid, _linear_compliance,
+from .cable_sections import (TINY, Arms, Compliance, checked_grid, compliance_table, gauss, linear_compliance,
                              segments_from_frequencies)
 from .damper import GEOMETRY, Damper
 from .hysteresis import HysteresisLaw
 from .zones import ZonedLaw
 
 
-__all__ = ["DEFAULT_SECTIONS", "CableState", "CableModel", "segments_from_frequencies"]
+__all__ = ["DEFAULT_SECTIONS", "CableBase", "CableState", "CableModel", "segments_from_frequencies"]
 
 DEFAULT_SECTIONS = 8
 """Gauss-Legendre sections per arm of :class:`CableModel` (the convergence study of ``docs/cable.md``);
@@ -92,7 +92,7 @@ def _resolve(names: tuple, required: tuple, damper: Damper, params: dict):
 
 
 @dataclass(frozen=True)
-class _CableBase:
+class CableBase:
     """What both cable models share: the law, the parameters they accept (the table of
     :class:`CableModel`) and their checks, and the clamp's inertia."""
 
@@ -186,7 +186,7 @@ class CableState:
 
 
 @dataclass(frozen=True)
-class CableModel(_CableBase):
+class CableModel(CableBase):
     """The strand-slip cable on statically determinate arms: ``f_uu`` and the steady state, fast.
 
     Parameters (keyword arguments of :meth:`state`; each a scalar or shape (n_sets,)):
@@ -242,7 +242,7 @@ class CableModel(_CableBase):
             raise InputError(f"table_points: expected an integer >= 4, got {self.table_points!r}")
         if not (np.isfinite(self.table_decades) and self.table_decades > 0):
             raise InputError(f"table_decades: expected a finite value > 0, got {self.table_decades!r}")
-        eta, w = _gauss(int(self.sections))
+        eta, w = gauss(int(self.sections))
         powers = eta[None, :] ** np.arange(4, -1, -1)[:, None]  # rows eta^4 .. eta^0
         object.__setattr__(self, "_rule", (eta, np.ascontiguousarray(powers * w[None, :])))
 
@@ -253,28 +253,28 @@ class CableModel(_CableBase):
         """The law changes along the arm (:class:`sbcal.model.zones.ZonedLaw`)."""
         return isinstance(self.law, ZonedLaw)
 
-    def _table(self, p, n_sets) -> _Compliance:
+    def _table(self, p, n_sets) -> Compliance:
         """The sections' compliance table: a row per parameter set; a zoned law's rows are its zones'
         (:data:`sbcal.model.zones.ZONES` order), ``zone * n_sets + set``."""
         lin = np.broadcast_to(p["EJ_min"] * (1 + 1j * p["beta_material"]), (n_sets,)).astype(complex)
         if self.law is None:
-            return _linear_compliance(lin)
+            return linear_compliance(lin)
         if not self.zoned:
             lp = {k: np.broadcast_to(p[k], (n_sets,))[:, None] for k in self.law.parameter_names}
-            return _compliance_table(self.law, lp, lin, int(self.table_points), float(self.table_decades))
+            return compliance_table(self.law, lp, lin, int(self.table_points), float(self.table_decades))
         zones = self.law.zones({k: p[k] for k in self.law.parameter_names})
         lp = {k: np.concatenate([np.broadcast_to(z[2][k], (n_sets,)) for z in zones])[:, None]
               for k in self.law.base.parameter_names}
         lins = np.concatenate([lin * np.broadcast_to(z[3], (n_sets,)) for z in zones])
-        table = _compliance_table(self.law.base, lp, lins, int(self.table_points), float(self.table_decades))
+        table = compliance_table(self.law.base, lp, lins, int(self.table_points), float(self.table_decades))
         return replace(table, monotone=table.monotone.reshape(len(zones), n_sets).all(axis=0))
 
     def _zone_rule(self, p, n_sets):
         """A zoned law's sections per parameter set: eta (Q, n_sets) from the mass node, weights (Q,
         n_sets) and the zone index of each section (Q,), Gauss-Legendre within each zone (the law
         jumps at a zone's edge: one rule across it would not converge)."""
-        x, w = _gauss(int(self.sections))
-        xz, wz = _gauss(int(self.zone_sections))
+        x, w = gauss(int(self.sections))
+        xz, wz = gauss(int(self.zone_sections))
         zc = np.broadcast_to(p["clamp_zone"], (n_sets,))
         zm = np.broadcast_to(p["mass_zone"], (n_sets,))
         eta, wt, zone = [], [], []
@@ -287,8 +287,8 @@ class CableModel(_CableBase):
         return np.concatenate(eta), np.concatenate(wt), np.concatenate(zone)
 
     @staticmethod
-    def _arms(p, n_sets, omega, x0, rule=None) -> _Arms:
-        """The per-entry constants (see :class:`_Arms`) from the damper's consistent mass matrices
+    def _arms(p, n_sets, omega, x0, rule=None) -> Arms:
+        """The per-entry constants (see :class:`Arms`) from the damper's consistent mass matrices
         (``rule``: a zoned law's sections per set, :meth:`_zone_rule`)."""
         nf = omega.size
 
@@ -325,11 +325,11 @@ class CableModel(_CableBase):
         fa, fb = -(1.0 + u0) / L, -u1
         fc = -w2 * cm * (156 * w0 + 22 * L * t0) + w2 * (u0 * (b00 * w0 + b01 * t0) + u1 * (b10 * w0 + b11 * t0))
         row = np.broadcast_to(np.arange(n_sets)[:, None, None], (n_sets, nf, 2)).reshape(-1)
-        return _Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L, rule=rule)
+        return Arms(n=nn, nc=nc, force=(fa, fb, fc), row=row, length=L, rule=rule)
 
     # --- Newton on the node loads (compiled: sbcal.model.cable_kernel) --------------------------
 
-    def _kernel_rule(self, arms: _Arms):
+    def _kernel_rule(self, arms: Arms):
         """The sections as the kernel takes them, per parameter set: eta and weights (n_sets or 1, Q), each
         section's zone (Q,) and whether they are per set (a zoned law) or the model's one rule."""
         if arms.zoned:
@@ -338,7 +338,7 @@ class CableModel(_CableBase):
         eta, wp = self._rule
         return eta[None, :], wp[4][None, :], np.zeros(eta.size, dtype=np.intp), False
 
-    def _sections(self, table, arms: _Arms, p):
+    def _sections(self, table, arms: Arms, p):
         """The sections at the loads ``p`` (2, b): compliance ``Kr``, ``Ki`` and ``|M|^-2``, each (Q, b)."""
         eta, _, zone, zoned = self._kernel_rule(arms)
         return cable_kernel.sections(_complex(p), _rows(arms.row), eta, zone, zoned, *table.args)
@@ -354,7 +354,7 @@ class CableModel(_CableBase):
         return tuple(out.reshape((4,) + m2.shape))
 
     @staticmethod
-    def _uniform_start(arms: _Arms, k):
+    def _uniform_start(arms: Arms, k):
         """The loads of a cable with one compliance ``k`` (b,) along each arm (exact, linear)."""
         n00, n01, n11 = arms.n
         x00, x01, x11 = n00 - k / 3.0, n01 - k / 2.0, n11 - k
@@ -362,7 +362,7 @@ class CableModel(_CableBase):
         idet = 1.0 / (x00 * x11 - x01 * x01)
         return np.stack([(x11 * c0 - x01 * c1) * idet, (x00 * c1 - x01 * c0) * idet])
 
-    def _start(self, table, arms: _Arms):
+    def _start(self, table, arms: Arms):
         """Start of Newton: the cable with one compliance along each arm, at the arm's rms moment.
 
         A relaxed fixed point in ``z = ln(mean |M|^2)`` from the fully slipped cable:
@@ -372,7 +372,7 @@ class CableModel(_CableBase):
         """
         return cable_kernel.start(_real(arms.n), _real(arms.nc), _rows(arms.row), *table.args)
 
-    def _newton(self, table, arms: _Arms, p):
+    def _newton(self, table, arms: Arms, p):
         """Damped Newton from ``p`` (2, b) for every entry, each to its own convergence.
 
         A step is at most half of ``|p|`` (far from the solution the widely linear model is poor),
@@ -428,7 +428,7 @@ class CableModel(_CableBase):
 
     def _run(self, damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full):
         p, n_sets, in_law = self._parameters(damper, params)
-        f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments, per_set=True)
+        f, amp, seg = checked_grid(freq_hz, amplitude_mm_pp, segments, per_set=True)
         if amp.ndim == 2 and amp.shape[0] > 1:  # one amplitude per (set, line): the rows are sets
             if n_sets not in (1, amp.shape[0]):
                 raise InputError(f"amplitude_mm_pp: {amp.shape[0]} rows (sets) where the parameters have {n_sets}")
@@ -475,7 +475,7 @@ class CableModel(_CableBase):
         curvature = per_line(np.abs(ksec) / np.sqrt(inv_m2))
         # the curvature's range along the whole arm: |M| is largest at an end, least at eta*
         a2 = p0.real**2 + p0.imag**2
-        eta = np.clip(-(p0 * np.conj(p1)).real / np.maximum(a2, _TINY), 0.0, 1.0)
+        eta = np.clip(-(p0 * np.conj(p1)).real / np.maximum(a2, TINY), 0.0, 1.0)
         m2 = np.abs(np.stack([p1, p0 + p1, p0 * eta + p1])) ** 2
         row = arms.row
         if arms.zoned:  # each end in its zone, eta* in the zone that holds it

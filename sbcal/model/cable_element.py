@@ -15,9 +15,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.errors import InputError
-from .cable import _CableBase
-from .cable_sections import _FD_LOG_STEP, _TINY, _grid
-from .cable_zones import _UNIT_CHI, _UNIT_EJ, CableZone, _zone_spec, _zoned_mesh
+from .cable import CableBase
+from .cable_sections import FD_LOG_STEP, TINY, checked_grid
+from .cable_zones import UNIT_CHI, UNIT_EJ, CableZone, zone_spec, zoned_mesh
 from .damper import Damper
 from .zones import ZonedLaw
 
@@ -259,7 +259,7 @@ def _solve_small(a, b):
 
 
 @dataclass(frozen=True)
-class ElementCableModel(_CableBase):
+class ElementCableModel(CableBase):
     """The distributed strand-slip cable: ``f_uu`` and its steady state for parameter sets.
 
     Parameters (keyword arguments of :meth:`state`): those of :class:`sbcal.model.cable.CableModel`
@@ -322,11 +322,11 @@ class ElementCableModel(_CableBase):
         if (zones or isinstance(self.law, ZonedLaw)) and self.grading != 1.0:
             raise InputError("grading: a zoned cable's elements are uniform within each zone (grading 1)")
         object.__setattr__(self, "zones", zones)
-        object.__setattr__(self, "_zone_specs", tuple(_zone_spec(z, self.law) for z in zones))
+        object.__setattr__(self, "_zone_specs", tuple(zone_spec(z, self.law) for z in zones))
         n = int(self.n_elements)
         if zones:
             lengths = {z.where: z.length for z in zones}
-            mesh, _ = _zoned_mesh(lengths.get("clamp", 0.0), lengths.get("mass", 0.0), n)
+            mesh, _ = zoned_mesh(lengths.get("clamp", 0.0), lengths.get("mass", 0.0), n)
         else:
             ratio = self.grading ** (1.0 / (n - 1)) if n > 1 else 1.0
             lengths = ratio ** np.arange(n)
@@ -346,21 +346,21 @@ class ElementCableModel(_CableBase):
         if not self.zones:
             return None
         ej, chi = (1.0, 1.0) if zone_scale is None else zone_scale
-        factor = {_UNIT_EJ: ej, _UNIT_CHI: chi}
+        factor = {UNIT_EJ: ej, UNIT_CHI: chi}
         out = [("middle", self.law, {k: p[k] for k in self.law.parameter_names}, 1.0)]
         for z in self._zone_specs:
             lp = {k: v * factor.get(u, 1.0) for k, v, u in z.fixed}
             for k, u in z.derived:
-                lp[k] = p[k] * (z.delta_EJ_ratio if u == _UNIT_EJ else z.chi_ratio if u == _UNIT_CHI else 1.0)
+                lp[k] = p[k] * (z.delta_EJ_ratio if u == UNIT_EJ else z.chi_ratio if u == UNIT_CHI else 1.0)
             out.append((z.where, z.law, lp, z.EJ_min_ratio))
         return out
 
     def _zone_mesh(self, p: dict):
-        """A zoned cable's nodes and each zone's elements (:func:`_zoned_mesh`)."""
+        """A zoned cable's nodes and each zone's elements (:func:`zoned_mesh`)."""
         if isinstance(self.law, ZonedLaw):
-            return _zoned_mesh(float(p["clamp_zone"][0]), float(p["mass_zone"][0]), int(self.n_elements))
+            return zoned_mesh(float(p["clamp_zone"][0]), float(p["mass_zone"][0]), int(self.n_elements))
         lengths = {z.where: z.length for z in self.zones}
-        return _zoned_mesh(lengths.get("clamp", 0.0), lengths.get("mass", 0.0), int(self.n_elements))
+        return zoned_mesh(lengths.get("clamp", 0.0), lengths.get("mass", 0.0), int(self.n_elements))
 
     def _check_zone_lengths(self, p: dict):
         """A ZonedLaw's ``clamp_zone`` and ``mass_zone``: one value for all sets (they place the nodes)."""
@@ -443,7 +443,7 @@ class ElementCableModel(_CableBase):
         if self.law is None:
             slope = np.zeros_like(sigma)
         else:
-            slope = (self._sigma(c, z * np.exp(_FD_LOG_STEP)) - sigma) / _FD_LOG_STEP
+            slope = (self._sigma(c, z * np.exp(FD_LOG_STEP)) - sigma) / FD_LOG_STEP
         # load of a unit change of sigma_j: -Khat_j X on element j's nodes (node 0 is prescribed)
         zero = np.zeros((b, n), dtype=complex)
         r = [[zero.copy(), zero.copy()] for _ in range(n)]
@@ -463,7 +463,7 @@ class ElementCableModel(_CableBase):
             d0, d1 = _curvature_ends(c, dx, e)  # (B, n): d chi / d sigma_j
             q0 = (2 * np.conj(c0) + np.conj(c1))[:, None]
             q1 = (2 * np.conj(c1) + np.conj(c0))[:, None]
-            te = np.maximum(t[e], _TINY)[:, None]
+            te = np.maximum(t[e], TINY)[:, None]
             # d ln T_e / d ln z_j = Re[(q0 d0 + q1 d1) slope_j] / (6 T_e^2)
             jac[:, e, :] = ((q0 * d0 + q1 * d1) * slope.T).real / (6 * te * te)
         jac -= np.eye(n)
@@ -482,8 +482,8 @@ class ElementCableModel(_CableBase):
             sub = c if active.size == b else c.take(active)
             last = it == max_iter
             t, f, s, jac = self._evaluate(sub, z[:, active], jacobian=not last)
-            u = np.log(np.maximum(z[:, active], _TINY))
-            g = np.log(np.maximum(t, _TINY)) - u  # (N, b_active)
+            u = np.log(np.maximum(z[:, active], TINY))
+            g = np.log(np.maximum(t, TINY)) - u  # (N, b_active)
             res = np.abs(g).max(axis=0)
             force[active], sigma[:, active], resid[active] = f, s, res
             done = res < self.tol
@@ -495,7 +495,7 @@ class ElementCableModel(_CableBase):
                 break
             step = _solve_small(jac[keep], -g[:, keep].T).T
             step = np.where(np.isfinite(step), step, g[:, keep])  # singular Jacobian: a plain fixed-point step
-            step *= np.minimum(1.0, _MAX_LOG_STEP / np.maximum(np.abs(step).max(axis=0), _TINY))
+            step *= np.minimum(1.0, _MAX_LOG_STEP / np.maximum(np.abs(step).max(axis=0), TINY))
             # converged entries keep their z (their force and sigma were stored above)
             active = active[keep]
             z[:, active] = np.exp(u[:, keep] + step)
@@ -552,7 +552,7 @@ class ElementCableModel(_CableBase):
                 raise InputError("linear_rigidity: the law's parameters are outside its domain"
                                  + (" (in some zone)" if zones is not None else ""))
             return self._with_invalid(damper, freq_hz, amplitude_mm_pp, segments, p, n_sets, valid, zone_scale)
-        f, amp, seg = _grid(freq_hz, amplitude_mm_pp, segments)
+        f, amp, seg = checked_grid(freq_hz, amplitude_mm_pp, segments)
         omega = 2 * np.pi * f
         x0 = amp / 2 * 1e-3
         mesh = self._mesh
@@ -643,7 +643,7 @@ class ElementCableModel(_CableBase):
         iterations = it
 
         def differs(za, zb, ra, rb):
-            d = np.abs(np.log(np.maximum(za, _TINY)) - np.log(np.maximum(zb, _TINY))).max(axis=0)
+            d = np.abs(np.log(np.maximum(za, TINY)) - np.log(np.maximum(zb, TINY))).max(axis=0)
             return (d > self.fold_tol) & (ra < self.tol) & (rb < self.tol)
 
         diff = differs(z, zc, resid, rc).reshape(n_sets, nf, 2).any(axis=-1)

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from .cable import CableModel
-from .cable_sections import _grid
+from .cable_sections import checked_grid
 from .damper import Damper
 
 
@@ -147,7 +147,7 @@ class HarmonicBalance:
         """
         model = self.model
         p, n_sets, in_law = model._parameters(damper, params)
-        f, amp, _ = _grid(freq_hz, amplitude_mm_pp, None)
+        f, amp, _ = checked_grid(freq_hz, amplitude_mm_pp, None)
         valid = model._in_domain(p, n_sets, in_law)
         table = model._table(p, n_sets) if valid.all() else None
         if table is not None:

@@ -2,7 +2,7 @@
 start and the damped Newton on the node loads, each a fused loop over the arm's sections.
 
 The arithmetic is :class:`sbcal.model.cable.CableModel`'s (``docs/cable.md``, "Newton"): a section's
-compliance from the per-set table (:class:`sbcal.model.cable_sections._Compliance`: bucket, first
+compliance from the per-set table (:class:`sbcal.model.cable_sections.Compliance`: bucket, first
 interval, comparisons, cubic Hermite; exponential tails beyond the nodes), the section moments of
 ``K``, ``dK/dy`` and ``(dK/dy) / |M|^2``, the widely linear 2x2 solve and the step control. Every
 entry is independent, so one entry runs its whole Newton in registers: no pass over memory per

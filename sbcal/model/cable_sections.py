@@ -13,10 +13,11 @@ from ..core.errors import InputError
 from .hysteresis import HysteresisLaw
 
 
-__all__ = []
+__all__ = ["FD_LOG_STEP", "TINY", "checked_grid", "Compliance", "linear_compliance", "compliance_table", "Arms",
+           "gauss"]
 
-_FD_LOG_STEP = 1e-6  # forward-difference step of the law's slope in ln chi
-_TINY = 1e-300
+FD_LOG_STEP = 1e-6  # forward-difference step of the law's slope in ln chi
+TINY = 1e-300
 # curvatures [1/m] scanned for the law's transition (where the slip part has lost half its stuck
 # value); the compliance table spans ``table_decades`` either side of it
 _SCAN = 10.0 ** np.arange(-9.0, 3.01, 1.0 / 3.0)
@@ -34,7 +35,7 @@ def segments_from_frequencies(freq_hz) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(np.diff(f) <= 0)]).astype(int)
 
 
-def _grid(freq_hz, amplitude_mm_pp, segments, per_set=False):
+def checked_grid(freq_hz, amplitude_mm_pp, segments, per_set=False):
     """Validated frequencies [Hz], amplitudes [mm p-p] and test segments, each shape (n_freq,)
     (``per_set``: amplitudes may also be (n_sets or 1, n_freq), returned 2-D then)."""
     f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
@@ -59,7 +60,7 @@ def _grid(freq_hz, amplitude_mm_pp, segments, per_set=False):
 # --- the fast model: statically determinate arms ---------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
-class _Compliance:
+class Compliance:
     """Section compliance ``K = 1 / EJ*(a)`` per parameter set as a function of ``y = ln m^2``,
     ``m = a |EJ*(a)| = |M|`` [N m] the section's moment amplitude.
 
@@ -121,8 +122,8 @@ class _Compliance:
         return cache
 
 
-def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> _Compliance:
-    """Pack nodes ``y`` (n_sets, n) increasing, ``K`` and ``dK/dy`` there into a :class:`_Compliance`."""
+def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> Compliance:
+    """Pack nodes ``y`` (n_sets, n) increasing, ``K`` and ``dK/dy`` there into a :class:`Compliance`."""
     s, n = y.shape
     rows = np.arange(s)
     h = np.diff(y, axis=1)
@@ -133,7 +134,7 @@ def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> _Compli
     upper = y[:, 1:].copy()
     upper[:, -1] = np.inf
     y0, y_end = y[:, 0], y[:, -1]
-    span = np.maximum(y_end - y0, _TINY)
+    span = np.maximum(y_end - y0, TINY)
     nb = n_buckets_per_node * (n - 1)
     while True:
         # first interval of each bucket; the most nodes inside one bucket is the comparisons needed
@@ -153,12 +154,12 @@ def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> _Compli
     # a tail must decay towards its limit; otherwise hold the end value
     ok = np.isfinite(rates) & (np.array([1.0, -1.0]) * rates.real > 0)
     rates = np.where(ok, rates, 0.0)
-    return _Compliance(coef=np.ascontiguousarray(coef), upper=upper.reshape(-1), first=first, y0=y0, y_end=y_end,
-                       inv_w=nb / span, n=n, n_buckets=nb, steps=max(steps, 1), ends=ends, refs=refs,
-                       rates=rates, monotone=np.ones(s, dtype=bool))
+    return Compliance(coef=np.ascontiguousarray(coef), upper=upper.reshape(-1), first=first, y0=y0, y_end=y_end,
+                      inv_w=nb / span, n=n, n_buckets=nb, steps=max(steps, 1), ends=ends, refs=refs,
+                      rates=rates, monotone=np.ones(s, dtype=bool))
 
 
-def _linear_compliance(lin) -> _Compliance:
+def linear_compliance(lin) -> Compliance:
     """The table of a linear cable: ``K = 1 / lin`` for every moment."""
     k = np.repeat((1.0 / lin)[:, None], 2, axis=1)
     # one interval over every representable |M|^2 (ln of a double lies within +-745)
@@ -166,7 +167,7 @@ def _linear_compliance(lin) -> _Compliance:
     return _hermite_table(y, k, np.zeros_like(k), k.copy())
 
 
-def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float) -> _Compliance:
+def compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float) -> Compliance:
     """Tabulate ``K(y)`` for each parameter set.
 
     ``lp``: the law's parameters, each (n_sets, 1); ``lin = EJ_min (1 + i beta_material)`` (n_sets,).
@@ -178,17 +179,17 @@ def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float)
     s = lin.size
     rows = np.arange(s)
     stuck = law.slip_rigidity(np.zeros((s, 1)), **lp)[:, 0]
-    ratio = np.abs(law.slip_rigidity(_SCAN[None, :], **lp)) / np.maximum(np.abs(stuck), _TINY)[:, None]
+    ratio = np.abs(law.slip_rigidity(_SCAN[None, :], **lp)) / np.maximum(np.abs(stuck), TINY)[:, None]
     below = ratio < 0.5
     k = np.where(below.any(axis=1), below.argmax(axis=1), _SCAN.size // 2).clip(1, _SCAN.size - 1)
     r0, r1 = ratio[rows, k - 1], ratio[rows, k]
-    frac = np.clip((r0 - 0.5) / np.maximum(r0 - r1, _TINY), 0.0, 1.0)
+    frac = np.clip((r0 - 0.5) / np.maximum(r0 - r1, TINY), 0.0, 1.0)
     u_mid = np.log(_SCAN[k - 1]) + frac * np.log(_SCAN[1] / _SCAN[0])
 
     span = decades * np.log(10.0)
     u = u_mid[:, None] + np.linspace(-span, span, n)[None, :]
     e = lin[:, None] + law.slip_rigidity(np.exp(u), **lp)
-    de = (lin[:, None] + law.slip_rigidity(np.exp(u + _FD_LOG_STEP), **lp) - e) / _FD_LOG_STEP
+    de = (lin[:, None] + law.slip_rigidity(np.exp(u + FD_LOG_STEP), **lp) - e) / FD_LOG_STEP
     y = 2.0 * (u + np.log(np.abs(e)))
     dy_du = 2.0 * (1.0 + (de / e).real)
     kk = 1.0 / e
@@ -201,7 +202,7 @@ def _compliance_table(law: HysteresisLaw, lp: dict, lin, n: int, decades: float)
 
 
 @dataclass(frozen=True, eq=False)
-class _Arms:
+class Arms:
     """Per-(set, line, arm) constants of the statically determinate arms, flattened on one batch axis
     b = (set * n_freq + line) * 2 + arm; arm-local frame (s from the clamp to the mass node).
 
@@ -246,11 +247,11 @@ class _Arms:
 
     def take(self, idx):
         """The constants of the entries ``idx``."""
-        return _Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force),
-                     row=self.row[idx], length=self.length[idx], rule=self.rule)
+        return Arms(n=self.n[:, idx], nc=self.nc[:, idx], force=tuple(v[idx] for v in self.force),
+                    row=self.row[idx], length=self.length[idx], rule=self.rule)
 
 
-def _gauss(q: int):
+def gauss(q: int):
     """Gauss-Legendre on [0, 1]: eta nodes (from the mass node, eta = 1 - s/L) and weights."""
     x, w = np.polynomial.legendre.leggauss(q)
     return 0.5 * (1.0 - x), 0.5 * w

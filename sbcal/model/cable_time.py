@@ -13,7 +13,7 @@ is ``p0 eta + p1`` (``eta = 1 - s/L``) and each Gauss section ``q`` of the model
 i beta)`` of the first-harmonic model is this viscous term in phase time, exact at the fundamental;
 ``M_slip`` from :mod:`sbcal.model.law_time`: a Masing law's Jenkins population is built against the
 section's ``EJ_min (1 + i beta)``, so that its error stays small against the section's loss too). The node's equation is the frequency-domain residual
-``S + N c - N p = 0`` of :class:`~sbcal.model.cable_sections._Arms` in phase time::
+``S + N c - N p = 0`` of :class:`~sbcal.model.cable_sections.Arms` in phase time::
 
     d^2/dtheta^2 [S(theta) + g(theta)] = -N p(theta),   S = sum_q w_q (eta_q, 1) kappa_q,
     g = N c x_b(theta) / x0
@@ -54,7 +54,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from .cable import CableModel
-from .cable_sections import _gauss, _grid
+from .cable_sections import checked_grid, gauss
 from .damper import Damper
 from .law_time import law_stepper
 
@@ -214,7 +214,7 @@ def _setup(model: CableModel, p, n_sets, f, amp, s: _Settings) -> _Cable:
     b = arms.row.size
     row = arms.row
     if rule is None:
-        eta, w = _gauss(int(model.sections))
+        eta, w = gauss(int(model.sections))
         eta, w = np.repeat(eta[:, None], b, axis=1), np.repeat(w[:, None], b, axis=1)
         law = model.law
         lp = {k: np.broadcast_to(p[k], (n_sets,))[row][None, :].repeat(eta.shape[0], axis=0)
@@ -567,7 +567,7 @@ def time_response(model: CableModel, damper: Damper, freq_hz, amplitude_mm_pp, *
     s = _settings(steps_per_period, ramp, settle, window, tol, max_periods, n_harmonics, newton_tol, max_iter,
                   prewarp, resolution, keep_series, start)
     p, n_sets, in_law = model._parameters(damper, params)
-    f, amp, _ = _grid(freq_hz, amplitude_mm_pp, None, per_set=True)
+    f, amp, _ = checked_grid(freq_hz, amplitude_mm_pp, None, per_set=True)
     if amp.ndim == 2 and amp.shape[0] > 1:
         if n_sets not in (1, amp.shape[0]):
             raise InputError(f"amplitude_mm_pp: {amp.shape[0]} rows (sets) where the parameters have {n_sets}")

@@ -16,12 +16,12 @@ from .hysteresis import law_for
 from .zones import ZONED_SUFFIX
 
 
-__all__ = ["MIN_ZONE_ELEMENTS", "CableZone"]
+__all__ = ["MIN_ZONE_ELEMENTS", "UNIT_EJ", "UNIT_CHI", "CableZone", "zone_spec", "zoned_mesh"]
 
 MIN_ZONE_ELEMENTS = 2
 """Least number of elements of each zone of a zoned cable (the total per arm is raised to this if needed)."""
 
-_UNIT_EJ, _UNIT_CHI = "N m^2", "1/m"
+UNIT_EJ, UNIT_CHI = "N m^2", "1/m"
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,8 @@ class _ZoneSpec:
     chi_ratio: float
 
 
-def _zone_spec(zone: CableZone, middle) -> _ZoneSpec:
+def zone_spec(zone: CableZone, middle) -> _ZoneSpec:
+    """A zone's law and its given and derived parameters, checked against the middle's law ``middle``."""
     tag = f"{zone.where} zone"
     law = middle if zone.law is None or zone.law == middle.name else law_for(zone.law)
     units = {p.name: p.unit for p in law.parameters}
@@ -140,8 +141,8 @@ def _zone_spec(zone: CableZone, middle) -> _ZoneSpec:
         if missing:
             raise InputError(f"{tag}: the {law.name} law needs {missing[0]} (a zone of another family than the "
                              f"middle's ({middle.name}) takes only delta_EJ from it)")
-        derived = (("delta_EJ", _UNIT_EJ),) if "delta_EJ" not in given else ()
-    if zone.chi_ratio != 1.0 and not any(u == _UNIT_CHI for _, u in derived):
+        derived = (("delta_EJ", UNIT_EJ),) if "delta_EJ" not in given else ()
+    if zone.chi_ratio != 1.0 and not any(u == UNIT_CHI for _, u in derived):
         raise InputError(f"{tag}: chi_ratio scales the middle's curvatures, which a {law.name} zone "
                          + ("does not take (another family)" if not same else "does not take (all given)"))
     return _ZoneSpec(where=zone.where, length=zone.length, law=law,
@@ -164,7 +165,7 @@ def _allocate(lengths, n: int) -> np.ndarray:
     return counts
 
 
-def _zoned_mesh(clamp: float, mass: float, n: int):
+def zoned_mesh(clamp: float, mass: float, n: int):
     """Nodes (fractions of the arm from the clamp) with the zone boundaries among them, and each zone's
     elements: ``{"clamp" | "middle" | "mass": slice}`` (a zone of length 0 left out)."""
     spans = [(name, a, b) for name, a, b in (("clamp", 0.0, clamp), ("middle", clamp, 1.0 - mass), ("mass", 1.0 - mass, 1.0))

@@ -18,7 +18,7 @@ from ..core.errors import InputError, InputWarning
 
 
 __all__ = ["Damper", "GEOMETRY", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
-           "DEFAULT_TOLERANCE_PCT", "with_value", "damper_toml"]
+           "DEFAULT_TOLERANCE_PCT", "with_value", "damper_toml", "checked_number"]
 
 GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
 """The damper's model geometry by name: masses [kg], inertias [kg m^2], offsets [m] of mass 1, mass 2
@@ -177,7 +177,7 @@ def _tolerance(doc: dict, path: str) -> tuple:
             why = _NO_TOLERANCE.get(field) or "unknown key; known: " + ", ".join(
                 k for k, f in FILE_KEYS.items() if f not in _NO_TOLERANCE)
             raise InputError(f"{path}: key '{full}': {why}")
-        x = _number(path, full, value, "nonneg")
+        x = checked_number(path, full, value, "nonneg")
         if x >= 100:
             raise InputError(f"{path}: key '{full}': a tolerance in percent must be below 100, got {value!r}")
         out[field] = x
@@ -195,9 +195,10 @@ def with_value(damper: Damper, key: str, value: float, *, where: str | None = No
     try:
         x = value if isinstance(value, bool) else float(value)  # numpy scalars as plain floats
     except (TypeError, ValueError):
-        x = value  # _number names the wrong type
+        x = value  # checked_number names the wrong type
     path = where or damper.source or "<damper>"
-    return replace(damper, **{field: _plausible(path, file_key, field, _number(path, file_key, x, _CHECKS[field]))})
+    return replace(damper, **{field: _plausible(path, file_key, field,
+                                                checked_number(path, file_key, x, _CHECKS[field]))})
 
 
 def damper_toml(damper: Damper, *, comment: str = "") -> str:
@@ -227,7 +228,8 @@ def damper_toml(damper: Damper, *, comment: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _number(path: str, key: str, value, check: str) -> float:
+def checked_number(path: str, key: str, value, check: str) -> float:
+    """A file key's value as a finite float (``check``: ``pos`` > 0, ``nonneg`` >= 0); InputError otherwise."""
     # bool is an int subclass in Python; "true" is not a mass.
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(f"{path}: key '{key}': expected a number, got {type(value).__name__} {value!r}")
@@ -259,7 +261,7 @@ def parse_damper(doc: dict, path: str = "<damper>") -> Damper:
                 raise InputError(f"{path}: key '{full}': missing{hint}")
             values[field] = 0.0
             continue
-        values[field] = _plausible(path, full, field, _number(path, full, section[key], check))
+        values[field] = _plausible(path, full, field, checked_number(path, full, section[key], check))
     damper = Damper(name=name, description=description, source=path, tolerance=_tolerance(doc, path), **values)
     for known, unknown in close.items():  # after every check: a refused file gets one line, its error
         warnings.warn(f"{path}: key '{unknown}': unknown, ignored; did you mean '{known}'?", InputWarning, stacklevel=2)

@@ -13,7 +13,7 @@ from scipy import special
 from scipy.interpolate import CubicSpline
 
 from ..core.errors import InputError
-from .law_base import _DELTA_EJ, HysteresisLaw, LawParameter, _masing_loop, jenkins_rigidity
+from .law_base import DELTA_EJ, HysteresisLaw, LawParameter, jenkins_rigidity, masing_loop
 
 
 __all__ = ["IwanLaw", "Iwan5Law", "IwanTailLaw", "LognormalIwanLaw"]
@@ -52,7 +52,7 @@ class IwanLaw(HysteresisLaw):
 
     name: ClassVar[str] = "iwan"
     parameters: ClassVar[tuple] = (
-        _DELTA_EJ,
+        DELTA_EJ,
         _CHI_MACRO,
         LawParameter("micro_exponent", "1", "c > -1: slip-curvature density ~ phi^c; micro-slip W ~ chi_a^(c+3)",
                      low=-1.0),
@@ -95,7 +95,7 @@ class IwanLaw(HysteresisLaw):
 
     def steady_loop(self, chi_a, theta, **params):
         """Masing's rule on :meth:`backbone` (exact for parallel Jenkins elements)."""
-        return _masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
+        return masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
 
 
 # --- Iwan with a power-law density between two cut-offs (five parameters) ----------------------
@@ -170,7 +170,7 @@ class Iwan5Law(HysteresisLaw):
     """
 
     name: ClassVar[str] = "iwan5"
-    parameters: ClassVar[tuple] = (_DELTA_EJ, _CHI_MICRO, _CHI_MACRO, _DENSITY_EXPONENT, _MACRO_RATIO)
+    parameters: ClassVar[tuple] = (DELTA_EJ, _CHI_MICRO, _CHI_MACRO, _DENSITY_EXPONENT, _MACRO_RATIO)
     ordered: ClassVar[tuple] = (("chi_micro", "chi_macro"),)
 
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
@@ -199,7 +199,7 @@ class Iwan5Law(HysteresisLaw):
 
     def steady_loop(self, chi_a, theta, **params):
         """Masing's rule on :meth:`backbone` (exact for parallel Jenkins elements)."""
-        return _masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
+        return masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
 
 
 # --- Iwan with a power-law tail beyond the macro-slip curvature -----------------------------------
@@ -232,7 +232,7 @@ class IwanTailLaw(HysteresisLaw):
     # did not mix (acceptance 2-3 %, tau 550, still not converged at 24 000 steps; docs/cable.md)
     min_tests: ClassVar[int] = 2
     parameters: ClassVar[tuple] = (
-        _DELTA_EJ,
+        DELTA_EJ,
         _CHI_MICRO,
         LawParameter("chi_tail", "1/m", "curvature where the slip-curvature density's power changes to the tail's"),
         _DENSITY_EXPONENT,
@@ -277,7 +277,7 @@ class IwanTailLaw(HysteresisLaw):
 
     def steady_loop(self, chi_a, theta, **params):
         """Masing's rule on :meth:`backbone` (exact for parallel Jenkins elements)."""
-        return _masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
+        return masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
 
 
 # --- Iwan with a lognormal slip-threshold density (the virtual bench's law) ----------------------
@@ -329,7 +329,7 @@ class LognormalIwanLaw(HysteresisLaw):
 
     name: ClassVar[str] = "lognormal_iwan"
     parameters: ClassVar[tuple] = (
-        _DELTA_EJ,
+        DELTA_EJ,
         LawParameter("chi_median", "1/m", "median slip curvature of the wires"),
         LawParameter("log_spread", "1", "log standard deviation of the slip curvatures (scalar)"),
     )
@@ -360,4 +360,4 @@ class LognormalIwanLaw(HysteresisLaw):
 
     def steady_loop(self, chi_a, theta, **params):
         """Masing's rule on :meth:`backbone`."""
-        return _masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)
+        return masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)

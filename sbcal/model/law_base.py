@@ -13,7 +13,7 @@ from ..core.errors import InputError
 from . import law_kernels
 
 
-__all__ = ["LawParameter", "HysteresisLaw", "jenkins_rigidity"]
+__all__ = ["LawParameter", "DELTA_EJ", "HysteresisLaw", "jenkins_rigidity", "masing_loop"]
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class LawParameter:
         return above & below
 
 
-_DELTA_EJ = LawParameter("delta_EJ", "N m^2", "rigidity the slip part adds while the wires stick (EJ_max - EJ_min)")
+DELTA_EJ = LawParameter("delta_EJ", "N m^2", "rigidity the slip part adds while the wires stick (EJ_max - EJ_min)")
 
 
 def jenkins_rigidity(x):
@@ -220,7 +220,7 @@ class HysteresisLaw:
         raise NotImplementedError
 
 
-def _masing_loop(backbone, chi_a, theta):
+def masing_loop(backbone, chi_a, theta):
     """Steady loop of a Masing law from its backbone (virgin curve) ``backbone(chi)``, chi >= 0.
 
     Unloading from ``chi_a`` (theta in [0, pi], chi falling): ``M = B(chi_a) - 2 B((chi_a - chi) / 2)``;

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .lines import _EDGE_EPS  # the same rule for a step's first sample as for a window's
+from .lines import EDGE_EPS  # the same rule for a step's first sample as for a window's
 
 __all__ = ["Dwell", "dwells_from_channel", "dwells_from_signal", "dwells_from_steps"]
 
@@ -72,7 +72,7 @@ def dwells_from_steps(starts_s, freqs_hz, n_samples: int, rate_hz: float) -> lis
         raise ValueError("starts_s and freqs_hz must be 1-D and of one length")
     if np.any(np.diff(starts) <= 0):
         raise ValueError("step starts must increase")
-    edges = np.ceil(np.append(starts, np.inf) * rate_hz - _EDGE_EPS)
+    edges = np.ceil(np.append(starts, np.inf) * rate_hz - EDGE_EPS)
     edges = np.clip(edges, 0, n_samples).astype(np.int64)
     return [Dwell(int(edges[k]), int(edges[k + 1]), float(freqs[k])) for k in range(freqs.size) if freqs[k] > 0]
 

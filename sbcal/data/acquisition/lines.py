@@ -22,7 +22,7 @@ from scipy import linalg, stats
 
 from .units import BASE_QUANTITIES
 
-__all__ = ["DwellLine", "Unsettled", "analyse_dwell", "clipped"]
+__all__ = ["DwellLine", "EDGE_EPS", "Unsettled", "analyse_dwell", "clipped"]
 
 _NYQUIST_USE = 0.45       # harmonics up to 0.45 fs: a DAS's anti-alias filter attenuates above that
 _MAX_BATCHES = 40         # batch means: 10-40 batches keep the t quantile near 2 and catch slow wander
@@ -33,7 +33,7 @@ _USE_ALPHA = 1.2e-2       # ... and for the windows used (2.5 sigma): a drift hi
 _BAND_ALPHA = 5e-3        # chance, per dwell and component, that noise alone puts a window outside the band
 _TAPER = 0.02             # a trailing fall of the base amplitude by more than 2 % is the drive tapering off
 _CHUNK_ELEMENTS = 2**20   # windows gathered per matrix product: 8 MB
-_EDGE_EPS = 1e-7          # [samples] a sample this close before a window edge counts as on it
+EDGE_EPS = 1e-7           # [samples] a sample this close before a window edge counts as on it
 _COARSE_SAMPLES = 2**18   # the base's last samples whose spectrum gives the first frequency guess
 
 
@@ -112,8 +112,8 @@ def _window_edges(n: int, period_samples: float, periods: int) -> np.ndarray:
     """Sample edges of the windows of ``periods`` whole periods: window k holds the samples with
     ``k periods T <= t < (k + 1) periods T``."""
     span = periods * period_samples
-    n_win = int(math.floor((n + _EDGE_EPS) / span))
-    return np.ceil(np.arange(n_win + 1) * span - _EDGE_EPS).astype(np.int64)
+    n_win = int(math.floor((n + EDGE_EPS) / span))
+    return np.ceil(np.arange(n_win + 1) * span - EDGE_EPS).astype(np.int64)
 
 
 def _basis(length: int, period_samples: float, n_harm: int) -> np.ndarray:
