@@ -160,7 +160,7 @@ def headline(rem: dict) -> str:
     if not m:
         return rem["words"]
     if m["material"]:
-        return f"{rem['words']} ({m['words'].removeprefix('partial, ')})"
+        return f"{rem['words']} ({m['detail']})"
     return f"{m['words']}. Statistically, {rem['words']}"
 
 
@@ -169,6 +169,4 @@ def shown_qualifier(rem: dict | None) -> str | None:
     if not rem:
         return None
     m = rem.get("materiality")
-    if m and not m["material"]:
-        return m["words"].split(":", 1)[0]
-    return rem.get("qualifier")
+    return m["qualifier"] if m else rem.get("qualifier")

@@ -188,7 +188,8 @@ def materiality(disc: dict, likes) -> dict:
     -------
     dict
         JSON-ready: ``material`` (bool), ``within_pct`` and ``within_deg`` (the largest discrepancy sd, in % of
-        |f| and deg), ``run_noise_pct`` and ``run_noise_deg`` (one run's median noise), ``words``.
+        |f| and deg), ``run_noise_pct`` and ``run_noise_deg`` (one run's median noise), ``qualifier`` (what a
+        reader is told: ``complete within X % and Y deg`` or ``partial``), ``detail`` (why) and ``words``.
     """
     sigma = np.concatenate([lk.sigma for lk in likes], axis=1)  # (2, n_lines): one run's sd, ln|f| and phase [rad]
     run_mag, run_deg = float(np.nanmedian(sigma[0])), float(np.degrees(np.nanmedian(sigma[1])))
@@ -198,6 +199,10 @@ def materiality(disc: dict, likes) -> dict:
            "run_noise_pct": 100 * float(np.expm1(run_mag)), "run_noise_deg": run_deg}
     size = f"{out['within_pct']:.2g} % and {deg:.2g} deg"
     noise = f"one run's noise, {out['run_noise_pct']:.2g} % and {run_deg:.2g} deg"
-    out["words"] = (f"partial, material: up to {size} beyond the noise, above {noise}" if material else
-                    f"complete within {size}: what is left is below {noise}, and predict and span carry it")
+    if material:
+        out.update(qualifier="partial", detail=f"material: up to {size} beyond the noise, above {noise}")
+        out["words"] = f"partial, {out['detail']}"
+    else:
+        out.update(qualifier=f"complete within {size}", detail=f"what is left is below {noise}, and predict and span carry it")
+        out["words"] = f"{out['qualifier']}: {out['detail']}"
     return out

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import t as student_t
 
+from .likelihood import wrap_phase
+
 
 __all__ = ["FitCheck", "check_curve", "fit_check"]
 
@@ -100,10 +102,6 @@ class FitCheck:
         return text
 
 
-def _wrap_deg(a):
-    return np.remainder(a + 180.0, 360.0) - 180.0
-
-
 def _lag1(z: np.ndarray) -> np.ndarray:
     """Lag-1 autocorrelation along the last axis (mean removed); 0 for a constant row."""
     z = z - z.mean(axis=-1, keepdims=True)
@@ -144,7 +142,7 @@ def check_curve(quantity: str, freq_hz, runs, curve, model_error: float = 0.0, *
         se = np.nanstd(obs, axis=0, ddof=1) / np.sqrt(n)
     d = ybar - np.asarray(curve, float)
     if quantity == "phase":
-        d = np.radians(_wrap_deg(np.degrees(d)))
+        d = wrap_phase(d)
     ok = np.isfinite(d) & np.isfinite(se) & (se > 0)
     limit = student_t.isf(alpha / (2 * max(ok.sum(), 1)), np.maximum(n - 1, 1)) * se
     missed = ok & (np.abs(d) > np.where(ok, limit, np.inf))

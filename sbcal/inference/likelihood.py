@@ -43,7 +43,7 @@ from ..model.fem import dynamic_stiffness
 from .priors import Prior
 
 
-__all__ = ["NU_MIN", "TestLikelihood", "JointLikelihood"]
+__all__ = ["NU_MIN", "TestLikelihood", "JointLikelihood", "wrap_phase"]
 
 NU_MIN = 2.0
 """Least degrees of freedom of a line's noise level (a line whose sigma rests on its own runs only)."""
@@ -52,7 +52,7 @@ _NU_MAX = 1e6  # a known sigma (infinite dof) is taken as this: the normal limit
 _MODEL_ERROR = ("sigma_mag", "sigma_phase")
 
 
-def _wrap(a):
+def wrap_phase(a):
     """Angle difference to [-pi, pi)."""
     return np.remainder(a + np.pi, 2 * np.pi) - np.pi
 
@@ -126,7 +126,7 @@ class TestLikelihood:
         # run deviations about their mean: phase about the median run, so a wrap cannot corrupt them
         ref = np.stack([np.zeros(self.freq_hz.shape), np.nanmedian(np.where(self.present, self.y[1], np.nan), axis=0)])
         d = np.where(self.present, self.y - ref[:, None, :], 0.0)
-        d[1] = np.where(self.present, _wrap(d[1]), 0.0)
+        d[1] = np.where(self.present, wrap_phase(d[1]), 0.0)
         self._ref, self._d = ref, d  # (2, F), (2, n_runs, F): each run's deviation from ref
         self.ybar = ref + d.sum(axis=1) / self.n  # (2, F)
         dev = np.where(self.present, d - (self.ybar - ref)[:, None, :], 0.0)
@@ -152,7 +152,7 @@ class TestLikelihood:
     def residual(self, mu) -> np.ndarray:
         """Run mean minus model, phase wrapped: ``(2, n, n_freq)``."""
         r = self.ybar[:, None, :] - mu
-        r[1] = _wrap(r[1])
+        r[1] = wrap_phase(r[1])
         return r
 
     def valid(self, params: dict) -> np.ndarray:
@@ -209,7 +209,7 @@ class TestLikelihood:
         location offset from ``mu``, scale^2 and dof, each (2, n, F)."""
         mean_m = np.where(m > 0, dsum / np.maximum(m, 1), 0.0)  # mean deviation of the m runs from ref
         r = (self._ref + mean_m)[:, None, :] - mu
-        r[1] = _wrap(r[1])
+        r[1] = wrap_phase(r[1])
         big = sig2 + m * s2
         w = np.where(m > 0, m * s2 / big, 0.0)
         q = ss[:, None, :] / sig2 + m * r * r / big
@@ -235,7 +235,7 @@ class TestLikelihood:
                                 self.ss)
             shift, var, dof = self._conditional(mu, s2, sig2, dsum - self._d[:, r], np.maximum(ss_other, 0.0), m)
             e = (self._ref + self._d[:, r])[:, None, :] - mu - shift
-            e[1] = _wrap(e[1])
+            e[1] = wrap_phase(e[1])
             lp = (gammaln((dof + 1) / 2) - gammaln(dof / 2) - 0.5 * np.log(dof * np.pi * var)
                   - 0.5 * (dof + 1) * np.log1p(e * e / (dof * var)))
             out[:, r] = np.sum(np.where(pres, lp, 0.0), axis=(0, 2))

@@ -96,10 +96,8 @@ def _left_words(rem: dict | None, word: str | None) -> str:
     words = rem["words"][len(word) + 2:] if word and rem["words"].startswith(word + ": ") else rem["words"]
     m = rem.get("materiality")
     if m and not m["material"]:
-        return f"{m['words'].split(': ', 1)[1]}; statistically partial: {words}"
-    if m:
-        return f"{words} ({m['words'].removeprefix('partial, ')})"
-    return words
+        return f"{m['detail']}; statistically partial: {words}"
+    return f"{words} ({m['detail']})" if m else words
 
 
 def _predictions(damper_dir: Path, figs: Path) -> list:
