@@ -31,7 +31,7 @@ from sbcal.model.cable import CableModel, _resolve
 from sbcal.model.cable_element import ElementCableModel
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from _slip_baseline import SlipModel  # noqa: E402
-from sbcal.model.hysteresis import DahlLaw, IwanLaw, LognormalIwanLaw, law_for  # noqa: E402
+from sbcal.model.laws import DahlLaw, IwanLaw, LognormalIwanLaw, law_for  # noqa: E402
 from sbcal.simulate.virtual_bench import DEFAULT_TESTS, test_amplitude  # noqa: E402
 
 from _timing import best_time  # noqa: E402

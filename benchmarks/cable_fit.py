@@ -6,7 +6,7 @@ Curves: :class:`sbcal.model.cable.CableModel` with ``--bench-elements`` elements
 fit's default), at 0.1, 0.2, 0.3, 0.4, 0.5, 1 and 2 mm p-p on the standard grid, on a geometry not
 used in development (masses and arm lengths ~20 % off damper1), made with each law of
 :data:`TRUTH` (the fitted families, their special cases Dahl and Iwan-4, and the bench-only
-lognormal Iwan law). Each fitted family (default :data:`sbcal.model.hysteresis.FITTED_LAWS`; the fit's
+lognormal Iwan law). Each fitted family (default :func:`sbcal.model.laws.fitted_laws`; the fit's
 default element count) is fitted to all amplitudes jointly by ``scipy.optimize.least_squares`` on
 ln|f| and phase [rad] (parameters EJ_min, beta_material, the law's, a1, a2; scales in logs), from
 three starts (:data:`STARTS`), keeping the best. Prints the rms error per amplitude (magnitude %,
@@ -26,7 +26,7 @@ from scipy.optimize import least_squares  # noqa: E402
 from sbcal import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.model.cable import CableModel  # noqa: E402
 from sbcal.model.damper import Damper  # noqa: E402
-from sbcal.model.hysteresis import FITTED_LAWS, law_for  # noqa: E402
+from sbcal.model.laws import fitted_laws, law_for  # noqa: E402
 
 AMPS = (0.1, 0.2, 0.3, 0.4, 0.5, 1.0, 2.0)
 MAX_NFEV = 200
@@ -115,7 +115,7 @@ def main():
     ap.add_argument("--quick", action="store_true", help="one start, 25 evaluations per fit")
     ap.add_argument("--skip", nargs="*", default=[], help="data-law:family pairs to leave out")
     ap.add_argument("--data", nargs="*", default=list(TRUTH), help="data laws of TRUTH (default: all)")
-    ap.add_argument("--families", nargs="*", default=list(FITTED_LAWS), help="fitted families (default: FITTED_LAWS)")
+    ap.add_argument("--families", nargs="*", default=list(fitted_laws()), help="fitted families (default: every fitted family)")
     args = ap.parse_args()
     global STARTS, MAX_NFEV
     if args.quick:

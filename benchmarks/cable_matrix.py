@@ -55,7 +55,7 @@ from sbcal.inference.cable_fit import cable_likelihood, read_cable  # noqa: E402
 from sbcal.model.damper import load_damper  # noqa: E402
 from sbcal.diagnosis.diagnose import DiagnoseConfig, diagnose  # noqa: E402
 from sbcal.model.cable_zones import CableZone  # noqa: E402
-from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
+from sbcal.model.laws import fitted_laws  # noqa: E402
 from sbcal.model.fem import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.simulate.virtual_bench import (DEFAULT_TESTS, BenchConfig, SlipLaw, record, response,  # noqa: E402
                                           test_amplitude)
@@ -125,7 +125,7 @@ def _wrap_rad(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def run_law(damper, law: str, seed: int, tmp: Path, families=FITTED_LAWS) -> dict:
+def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws()) -> dict:
     """One row (``law`` a key of :data:`ROWS`): record, diagnose, compare the verdict's curves with the truth."""
     path = tmp / f"{law}.csv"
     config = record_row(damper, law, seed, path)
@@ -163,7 +163,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=2029)
     ap.add_argument("--rows", "--laws", dest="rows", nargs="+", choices=list(ROWS), default=list(ROWS),
                     help="the rows to run (default all; --laws is the old name)")
-    ap.add_argument("--families", nargs="+", choices=list(FITTED_LAWS), default=list(FITTED_LAWS))
+    ap.add_argument("--families", nargs="+", choices=list(fitted_laws()), default=list(fitted_laws()))
     ap.add_argument("--json", metavar="OUT")
     ap.add_argument("--data", metavar="DIR", help="only record each row's bench CSV into DIR (and, for a zoned row, "
                                                   "its difference from the cable without zones); no diagnosis")

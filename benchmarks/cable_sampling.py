@@ -28,7 +28,7 @@ from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.data.labels import state_tests  # noqa: E402
 from sbcal.inference.cable_fit import fit_cable  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
-from sbcal.model.hysteresis import FITTED_LAWS  # noqa: E402
+from sbcal.model.laws import fitted_laws  # noqa: E402
 
 
 def cpu_s() -> float:
@@ -54,7 +54,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dampers", nargs="*", default=["damper1", "damper2"])
     ap.add_argument("--states", nargs="*", default=["dry", "oiled"])
-    ap.add_argument("--laws", nargs="*", default=list(FITTED_LAWS))
+    ap.add_argument("--laws", nargs="*", default=list(fitted_laws()))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()

@@ -9,7 +9,7 @@ the time integration), ``bouc_wen`` (``chi_slip = 3e-3``, ``n = 2``) with 7 harm
 (``chi_micro = 1e-3``, ``chi_macro = 0.02``, ``c = -0.5``, ``S = 0.1``) with 5, one core. For each law
 it prints the first call (the law's tables built: the describing-function table the first-harmonic start
 uses, Bouc-Wen's inverse arc), the best wall time of ``HarmonicBalance.state`` on the compiled
-operators (sbcal.model.law_kernels) and on the numpy reference (tests/law_reference.py: the laws'
+operators (sbcal.model.laws.kernels) and on the numpy reference (tests/law_reference.py: the laws'
 periodic operators, and Bouc-Wen's steady-loop turning state, as they were), their ratio, and the
 worst differences between the two: ``|f_uu / f_uu(numpy) - 1|`` and ``|distortion / distortion(numpy)
 - 1|``. Target (the issue): Bouc-Wen's 37 lines <= 10 s (172 s when docs/cable.md's table was made).
@@ -30,7 +30,7 @@ from sbcal import STANDARD_GRID_HZ  # noqa: E402
 from sbcal.model.cable import CableModel  # noqa: E402
 from sbcal.model.cable_harmonics import HarmonicBalance  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
-from sbcal.model.hysteresis import law_for  # noqa: E402
+from sbcal.model.laws import law_for  # noqa: E402
 
 from _timing import best_time  # noqa: E402
 

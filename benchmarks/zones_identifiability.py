@@ -35,7 +35,7 @@ from sbcal.inference.cable_fit import fit_cable
 from sbcal.model.cable import CableModel
 from sbcal.model.damper import resolve_damper
 from sbcal.model.fem import STANDARD_GRID_HZ
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 
 MIDDLE = {
     "iwan5": {"delta_EJ": 0.35, "chi_micro": 2e-5, "chi_macro": 0.01, "density_exponent": -0.8, "macro_ratio": 0.2},

@@ -43,7 +43,7 @@ OUTPUT = Path(__file__).resolve().parents[1] / "sbcal" / "data" / "bench.csv"
 # material loss (its loss factor differs below 0.5 mm, thesis Fig. 4.12). Oiling the cable
 # lubricates the wires: they slip at lower curvature and the slipped strand is softer and less
 # lossy (thesis Fig. 2.13: "a clear reduction in the stiffness ... with a decrease of damping").
-# The law is the bench's own lognormal Iwan law (sbcal.model.hysteresis.LognormalIwanLaw), fitted by
+# The law is the bench's own lognormal Iwan law (sbcal.model.laws.LognormalIwanLaw), fitted by
 # neither family: values chosen by least squares on the one-EJ-per-test table (damper 1).
 _LAW1 = SlipLaw(law="lognormal_iwan", params=(("delta_EJ", 42.0), ("chi_median", 0.006), ("log_spread", 2.1)))
 _LAW2 = SlipLaw(law="lognormal_iwan", params=(("delta_EJ", 41.0), ("chi_median", 0.0064), ("log_spread", 2.1)))

@@ -1,10 +1,10 @@
 """The laws' periodic operators in numpy: the reference the compiled ones are tested against.
 
 :func:`bw_periodic_reference` and :func:`masing_periodic_reference` are the numpy formulation of
-:meth:`sbcal.model.law_base.HysteresisLaw.periodic_moment` (Bouc-Wen's state stepped along the arc and
+:meth:`sbcal.model.laws.base.HysteresisLaw.periodic_moment` (Bouc-Wen's state stepped along the arc and
 its period map solved by Newton; Masing's rule with Madelung's memory), every row stepped together
 sample by sample, and :func:`bw_turning_reference` Bouc-Wen's turning state (every loop's Newton
-together), before the compiled kernels (:mod:`sbcal.model.law_kernels`) replaced them.
+together), before the compiled kernels (:mod:`sbcal.model.laws.kernels`) replaced them.
 :func:`reference_law` is a law on these (the whole harmonic balance on the reference):
 ``tests/test_law_kernels.py`` holds the two to 1e-10, ``benchmarks/harmonic_balance.py`` times them
 side by side.
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbcal.model.bouc_wen import BoucWenLaw, DahlLaw, _bw_arc, _bw_signed_arc, _bw_signed_inverse
+from sbcal.model.laws.bouc_wen import BoucWenLaw, DahlLaw, _bw_arc, _bw_signed_arc, _bw_signed_inverse
 
 
 __all__ = ["bw_turning_reference", "bw_periodic_reference", "masing_periodic_reference", "reference_law"]
@@ -42,7 +42,7 @@ def reference_law(law):
 
 
 def _bw_branch_reference(self, chi, chi_a, *, delta_EJ, chi_slip, sharpness):
-    """:meth:`sbcal.model.bouc_wen.BoucWenLaw._branch` on :func:`bw_turning_reference`."""
+    """:meth:`sbcal.model.laws.bouc_wen.BoucWenLaw._branch` on :func:`bw_turning_reference`."""
     eta_a = bw_turning_reference(chi_a / chi_slip, sharpness)
     y = _bw_arc(eta_a, sharpness, 1.0) - (chi_a - chi) / chi_slip
     n = np.broadcast_to(sharpness, y.shape)
@@ -53,7 +53,7 @@ def _bw_branch_reference(self, chi, chi_a, *, delta_EJ, chi_slip, sharpness):
 
 def bw_turning_reference(a, n):
     """``eta_a`` of the steady loop at amplitude ``a``: ``A+(eta_a) + A-(eta_a) = 2 a``
-    (``sbcal.model.bouc_wen._bw_turning``), every loop's Newton in ``eta_a`` together."""
+    (``sbcal.model.laws.bouc_wen._bw_turning``), every loop's Newton in ``eta_a`` together."""
     a, n = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(n, dtype=float))
     lo, hi = np.zeros(a.shape), np.ones(a.shape)
     eta_a = np.minimum(a, 0.5)

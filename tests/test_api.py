@@ -38,3 +38,30 @@ def test_an_unknown_name_is_an_attribute_error():
         assert "no_such_name" in str(e)
     else:
         raise AssertionError("sbcal.no_such_name resolved")
+
+
+SUBPACKAGES = ("data", "model", "inference", "diagnosis", "design", "simulate", "report")
+
+
+def test_each_subpackage_exports_its_interface_and_shadows_no_submodule():
+    """A subpackage's names are the objects its modules define (the same as ``sbcal``'s where both
+    export one), and none is named as one of its submodules (which would shadow it once imported)."""
+    import importlib
+    import pkgutil
+
+    for sub in SUBPACKAGES:
+        pkg = importlib.import_module(f"sbcal.{sub}")
+        modules = {m.name for m in pkgutil.iter_modules(pkg.__path__)}
+        assert pkg.__all__ and not set(pkg.__all__) & modules, sub
+        for name in pkg.__all__:
+            obj = getattr(pkg, name)
+            if name in sbcal.__all__:
+                assert getattr(sbcal, name) is obj, (sub, name)
+            if callable(obj) and getattr(obj, "__module__", "").startswith("sbcal."):
+                assert (obj.__doc__ or "").strip(), f"sbcal.{sub}.{name}: no docstring"
+
+
+def test_docs_api_names_every_subpackage():
+    text = API.read_text(encoding="utf-8")
+    for sub in SUBPACKAGES:
+        assert f"`sbcal.{sub}`" in text, sub

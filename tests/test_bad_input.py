@@ -100,15 +100,15 @@ CASES = [
      ["compare", "--before", "runs/damper1", "--after", "runs/damper1@oiled", "--spec", "a.toml"], "resonance_freq_pct"),
     # priors TOML (sbcal sample --prior)
     ("prior-renamed-parameter", {"p.toml": _PRIORS.replace("[parameters.EJ]", "[parameters.EX]", 1)},
-     ["sample", "--test", "0.5-0.5", "--priors", "p.toml", "--runs", "r"], "'parameters.EJ': missing (used by set 'theta1')"),
+     ["sample", "--tests", "0.5-0.5", "--priors", "p.toml", "--runs", "r"], "'parameters.EJ': missing (used by set 'theta1')"),
     ("prior-bad-dist", {"p.toml": _PRIORS.replace('dist = "uniform"', 'dist = "unifrom"', 1)},
-     ["sample", "--test", "0.5-0.5", "--priors", "p.toml", "--runs", "r"], "expected one of uniform, loguniform"),
-    ("prior-bad-toml", {"p.toml": "[EJ\n"}, ["sample", "--test", "0.5-0.5", "--priors", "p.toml", "--runs", "r"], "invalid TOML"),
+     ["sample", "--tests", "0.5-0.5", "--priors", "p.toml", "--runs", "r"], "expected one of uniform, loguniform"),
+    ("prior-bad-toml", {"p.toml": "[EJ\n"}, ["sample", "--tests", "0.5-0.5", "--priors", "p.toml", "--runs", "r"], "invalid TOML"),
     # design space TOML
     ("space-unknown-key", {"s.toml": '[vary]\n"mass1.mass_g" = [1.0, 3.0]\n'},
      ["design", "--conductor", "drake", "--cable", "runs/damper1/cable-dry", "--damper", "damper1", "--space", "s.toml"], "mass1.mass_g"),
     # options
-    ("seed-negative", {}, ["sample", "--test", "0.5-0.5", "--seed", "-1"], "--seed: expected an integer >= 0"),
+    ("seed-negative", {}, ["sample", "--tests", "0.5-0.5", "--seed", "-1"], "--seed: expected an integer >= 0"),
     ("seed-text", {}, ["bench", "--damper", "damper1", "--seed", "x", "-o", "b.csv"], "--seed: expected an integer >= 0"),
     ("set-negative-ej", {}, ["simulate", "--damper", "damper1", "--set", "EJ=-9", "-o", "s.csv"], "EJ must be > 0"),
     ("set-negative-beta", {}, ["simulate", "--damper", "damper1", "--set", "beta=-0.1", "-o", "s.csv"], "beta must be >= 0"),

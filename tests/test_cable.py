@@ -18,7 +18,7 @@ from sbcal.model.cable import DEFAULT_SECTIONS, CableModel, segments_from_freque
 from sbcal.model.cable_element import DEFAULT_N_ELEMENTS, ElementCableModel
 from sbcal.core.errors import InputError
 from sbcal.model.fem import STANDARD_GRID_HZ, clamp_impedance, dynamic_stiffness
-from sbcal.model.hysteresis import DahlLaw, HysteresisLaw, IwanLaw, LawParameter, LognormalIwanLaw
+from sbcal.model.laws import DahlLaw, HysteresisLaw, IwanLaw, LawParameter, LognormalIwanLaw
 
 G = STANDARD_GRID_HZ
 DAHL = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_dahl=3e-3)

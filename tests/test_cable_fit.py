@@ -7,7 +7,7 @@ from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import default_bench_path, load_bench
 from sbcal.data.labels import state_tests
 from sbcal.inference.cable_fit import cable_likelihood, cable_start, compared_laws
-from sbcal.model.hysteresis import FITTED_LAWS
+from sbcal.model.laws import fitted_laws
 
 # Where the engine's own start (one differential-evolution search, seed 1) stopped on damper1's dry
 # cable under iwan5: chi_macro on its bound, a plateau where the law no longer changes within the
@@ -29,9 +29,9 @@ def test_the_cable_start_finds_the_mode_not_the_plateau(damper1):
 
 def test_a_tail_is_compared_only_where_every_state_has_two_tests():
     """iwan_tail needs two amplitudes per cable state (one does not identify its tail); the others one."""
-    assert compared_laws(FITTED_LAWS, ["1-1", "2-2"]) == ("bouc_wen", "iwan5", "iwan_tail")
-    assert compared_laws(FITTED_LAWS, ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ("bouc_wen", "iwan5")
-    assert compared_laws(FITTED_LAWS, ["1-1"]) == ("bouc_wen", "iwan5")
+    assert compared_laws(fitted_laws(), ["1-1", "2-2"]) == ("bouc_wen", "iwan5", "iwan_tail")
+    assert compared_laws(fitted_laws(), ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ("bouc_wen", "iwan5")
+    assert compared_laws(fitted_laws(), ["1-1"]) == ("bouc_wen", "iwan5")
     # a zoned law too: at one amplitude its zones trade with the middle's law
     assert compared_laws(("iwan5_zoned", "bouc_wen_zoned"), ["0.5-0.5", "1-1", "2-2"]) == ("iwan5_zoned", "bouc_wen_zoned")
     assert compared_laws(("iwan5_zoned",), ["0.5-0.5", "1-1", "2-2", "1-1-oiled"]) == ()
@@ -77,7 +77,7 @@ def test_a_family_that_did_not_converge_cannot_win():
 def test_a_zoned_fit_starts_from_the_uniform_one(damper1):
     from sbcal.inference.cable_fit import zoned_start
     from sbcal.inference.priors import cable_prior
-    from sbcal.model.zones import ZONE_PARAMETERS
+    from sbcal.model.laws.zones import ZONE_PARAMETERS
 
     uniform = cable_prior("iwan5", damper1)
     zoned = cable_prior("iwan5_zoned", damper1)

@@ -9,7 +9,7 @@ from sbcal.core.errors import InputError
 from sbcal.model.cable import CableModel
 from sbcal.model.cable_harmonics import HarmonicBalance
 from sbcal.model.fem import STANDARD_GRID_HZ as G
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 
 DAHL = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_dahl=3e-3)
 BOUC_WEN = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_slip=3e-3, sharpness=2.0)

@@ -13,7 +13,7 @@ import pytest
 from sbcal.model.cable import CableModel
 from sbcal.model.cable_sections import compliance_table
 from sbcal.model.fem import STANDARD_GRID_HZ
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 from tests.cable_reference import NumpyCableModel, _lookup
 
 G = STANDARD_GRID_HZ

@@ -1,4 +1,4 @@
-"""The fast cable in time (sbcal.model.cable_time) and the hysteresis laws' time steppers (sbcal.model.law_time).
+"""The fast cable in time (sbcal.model.cable_time) and the hysteresis laws' time steppers (sbcal.model.laws.steppers).
 
 Laws: the ODE laws' steppers follow the laws' own steady loops; the Jenkins populations of the Masing
 laws follow theirs (at a fine resolution) and their describing functions are within 5e-4 of the laws'.
@@ -18,9 +18,9 @@ from sbcal.model.cable import CableModel
 from sbcal.model.cable_element import ElementCableModel
 from sbcal.model.cable_time import TimeResponse, time_response
 from sbcal.model.fem import STANDARD_GRID_HZ
-from sbcal.model.hysteresis import LAWS, law_for
-from sbcal.model.law_base import masing_loop
-from sbcal.model.law_time import (BoucWenStepper, DahlStepper, JenkinsPopulation, drive, law_stepper,
+from sbcal.model.laws import LAWS, law_for
+from sbcal.model.laws.base import masing_loop
+from sbcal.model.laws.steppers import (BoucWenStepper, DahlStepper, JenkinsPopulation, drive, law_stepper,
                                   transition_curvature)
 
 G = STANDARD_GRID_HZ

@@ -83,7 +83,7 @@ def test_a_bad_stored_decision_is_one_clear_line(bench_path, tmp_path, capsys, v
     with pytest.raises(InputError, match=match.replace(".", r"\.")):
         CleanBench.from_stored(bench, {"damper1": doc["tests"]}, z_threshold=3.0, source=str(path))
     # through the command line: exit 2, one line naming the file and the key, nothing sampled
-    rc = main(["sample", "--test", "1-1", "--bench", str(bench_path), "--runs", str(tmp_path), "--quiet"])
+    rc = main(["sample", "--tests", "1-1", "--bench", str(bench_path), "--runs", str(tmp_path), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and str(path) in err and "removed_runs" in err and err.count("\n") == 1
     assert not (tmp_path / "damper1" / "1-1").exists()

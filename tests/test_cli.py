@@ -81,7 +81,7 @@ def test_unwritable_output_is_one_line(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["sample", "--test", "0.5-0.5", "--seed", "-1"], "sample: argument --seed: expected an integer >= 0, got -1"),
+    (["sample", "--tests", "0.5-0.5", "--seed", "-1"], "sample: argument --seed: expected an integer >= 0, got -1"),
     (["bench", "--damper", "damper1", "--seed", "x", "-o", "b.csv"], "bench: argument --seed: expected an integer >= 0"),
     (["simulate", "--damper", "damper1", "--set", "EJ=-9", "-o", "s.csv"], "--set 'EJ=-9': EJ must be > 0"),
     (["simulate", "--damper", "damper1", "--set", "beta=-0.1", "-o", "s.csv"], "--set 'beta=-0.1': beta must be >= 0"),
@@ -122,6 +122,11 @@ def test_every_subcommand_spells_the_shared_options_one_way(capsys):
                 assert o == "--runs" and a.metavar == "DIR", (name, o)
             if o == "-o":
                 assert a.option_strings == ["-o", "--output"], name
-    assert main(["sample", "--test", "9-9", "--out", "nowhere"]) == 2
+            if a.dest == "tests" and a.help != argparse.SUPPRESS:  # the tests: --tests LABEL [LABEL ...]
+                assert o == "--tests" and a.nargs == "+" and a.metavar == "LABEL", (name, o)
+    assert main(["sample", "--tests", "9-9", "--out", "nowhere"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "sbcal: warning: --out is deprecated (kept for one release): use --runs" and "9-9" in err[1]
+    assert main(["sample", "--test", "0.5-0.5", "--test", "9-9", "--runs", "nowhere"]) == 2  # repeatable, as it was
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "sbcal: warning: --test is deprecated (kept for one release): use --tests" and "9-9" in err[-1]

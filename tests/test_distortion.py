@@ -23,7 +23,7 @@ from sbcal.inference.cable_fit import cable_likelihood, read_cable
 from sbcal.inference.distortion import HARMONICS, predicted_distortion
 from sbcal.model.cable import CableModel
 from sbcal.model.damper import resolve_damper
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 from sbcal.simulate.virtual_bench import BenchConfig, record
 
 from .test_predict import LAW, TRUTH, _fit

@@ -100,7 +100,7 @@ def test_the_report_warns_where_a_fit_fails(tmp_path):
     pages = {}
     for factor in (1.3, 1.0):
         runs = tmp_path / f"runs{factor}"
-        assert main(["sample", "--bench", str(_bench(tmp_path, factor)), "--damper", "damper1", "--test", "0.5-0.5",
+        assert main(["sample", "--bench", str(_bench(tmp_path, factor)), "--damper", "damper1", "--tests", "0.5-0.5",
                      "--runs", str(runs), "--seed", "0", "--quiet"]) == 0
         assert main(["report", "--runs", str(runs), "-o", str(tmp_path / f"rep{factor}"), "--quiet"]) == 0
         pages[factor] = html.unescape((tmp_path / f"rep{factor}" / "index.html").read_text())

@@ -22,7 +22,7 @@ from sbcal.inference.likelihood import JointLikelihood
 from sbcal.model.cable import CableModel
 from sbcal.model.cable_harmonics import HarmonicBalance
 from sbcal.model.fem import STANDARD_GRID_HZ
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 
 LAW = "bouc_wen"  # its posterior converges on these lines (iwan5's micro-slip onset would not be pinned)
 TRUTH = dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_slip=3e-3, sharpness=2.0)

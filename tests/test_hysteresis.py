@@ -9,10 +9,10 @@ from scipy.integrate import quad
 
 from sbcal.model.damper import resolve_damper
 from sbcal.core.errors import InputError
-from sbcal.model.hysteresis import (
-    FITTED_LAWS, LAWS, BoucWenLaw, DahlLaw, Iwan5Law, IwanLaw, IwanTailLaw, LognormalIwanLaw, jenkins_rigidity, law_for,
+from sbcal.model.laws import (
+    LAWS, BoucWenLaw, DahlLaw, Iwan5Law, IwanLaw, IwanTailLaw, LognormalIwanLaw, fitted_laws, jenkins_rigidity, law_for,
 )
-from sbcal.inference.priors import extension_prior
+from sbcal.inference.priors import cable_prior
 
 DAHL = dict(delta_EJ=50.0, chi_dahl=2e-3)
 IWAN = dict(delta_EJ=50.0, chi_macro=5e-3, micro_exponent=-0.5, macro_ratio=0.3)
@@ -143,7 +143,7 @@ def test_laws_are_picklable_and_describe_their_parameters():
         assert pickle.loads(pickle.dumps(law)) == law
         assert law.parameter_names[0] == "delta_EJ"
         assert all(p.unit and p.meaning for p in law.parameters)
-    assert set(FITTED_LAWS) == {"bouc_wen", "iwan5", "iwan_tail"}
+    assert set(fitted_laws()) == {"bouc_wen", "iwan5", "iwan_tail"}
     # no parameter name means two things across the laws
     meaning = {}
     for cls in LAWS.values():
@@ -205,7 +205,7 @@ def test_bouc_wen_limits(n):
 def test_bouc_wen_is_smooth_across_its_table_ends():
     # the table's ends continue with the limits, matched in value and slope (the sampler's
     # log-density stays smooth): the jump and the kink are at the table's own accuracy
-    from sbcal.model.bouc_wen import _BW_XI, _bw_v
+    from sbcal.model.laws.bouc_wen import _BW_XI, _bw_v
     law = BoucWenLaw()
     for n in (0.35, 1.7, 4.8):
         p = dict(BOUC, sharpness=n)
@@ -300,11 +300,10 @@ def test_fitted_families_domains():
     np.testing.assert_allclose(s[1], BoucWenLaw().slip_rigidity([1e-4, 1e-3, 1e-2], **dict(BOUC, sharpness=2.0)))
 
 
-@pytest.mark.parametrize("name", FITTED_LAWS)
+@pytest.mark.parametrize("name", fitted_laws())
 def test_prior_boxes_of_the_fitted_families(name):
-    from importlib import resources
     law = law_for(name)
-    prior = extension_prior(name, resolve_damper("damper1"), path=resources.files("sbcal") / "priors" / "cable.toml")
+    prior = cable_prior(name, resolve_damper("damper1"))
     assert set(prior.names) == {"a1", "a2", "EJ_min", "beta_material", *law.parameter_names}
     # the box's centre (geometric for log scales) lies in the law's domain
     centre = np.where(prior.log_scale, np.sqrt(np.abs(prior.lower * prior.upper)), 0.5 * (prior.lower + prior.upper))

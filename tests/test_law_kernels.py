@@ -1,4 +1,4 @@
-"""The laws' compiled periodic operators (:mod:`sbcal.model.law_kernels`) against their numpy formulation
+"""The laws' compiled periodic operators (:mod:`sbcal.model.laws.kernels`) against their numpy formulation
 (``tests/law_reference.py``): the moments and their derivatives along the path to 1e-10, with inner
 loops (several maxima per period), flat steps, micro-slip and saturation; Bouc-Wen's turning state;
 and the harmonic balance on either."""
@@ -6,11 +6,11 @@ and the harmonic balance on either."""
 import numpy as np
 import pytest
 
-from sbcal.model.bouc_wen import _bw_turning
+from sbcal.model.laws.bouc_wen import _bw_turning
 from sbcal.model.cable import CableModel
 from sbcal.model.cable_harmonics import HarmonicBalance
 from sbcal.model.fem import STANDARD_GRID_HZ as G
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 
 from .law_reference import bw_turning_reference, reference_law
 from .test_law_periodic import LAWS, _law

@@ -5,7 +5,7 @@ operator for any periodic curvature (:meth:`HysteresisLaw.periodic_moment`), hel
 import numpy as np
 import pytest
 
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 
 LAWS = {
     "bouc_wen": dict(delta_EJ=20.0, chi_slip=0.01, sharpness=2.5),

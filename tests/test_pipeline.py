@@ -115,7 +115,7 @@ def test_dask_cluster_gives_the_same_draws(bench_path, tmp_path):
 
 def test_scheduler_that_does_not_answer_is_one_line(bench_path, tmp_path, capsys):
     pytest.importorskip("distributed")
-    rc = main(["sample", "--test", "0.5-0.5", "--bench", str(bench_path), "--runs", str(tmp_path),
+    rc = main(["sample", "--tests", "0.5-0.5", "--bench", str(bench_path), "--runs", str(tmp_path),
                "--scheduler", "tcp://127.0.0.1:9", "--quiet"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "--scheduler tcp://127.0.0.1:9" in err and "\n" not in err

@@ -23,7 +23,7 @@ from sbcal.inference.cable_fit import CableFit, CableForward, cable_config, cabl
 from sbcal.cli import main
 from sbcal.model.damper import Damper, FILE_KEYS, resolve_damper, with_value
 from sbcal.model.fem import dynamic_stiffness, natural_frequencies
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 from sbcal.design.cable_run import RANGE_STATUS, load_cable_run
 from sbcal.design.impedance import impedance_from_cable
 from sbcal.design.predict import EXTRAPOLATION_MARGIN, level_resonances, model_error_of, predict

@@ -80,10 +80,10 @@ def test_same_seed_same_numbers(bench, tmp_path):
 
 
 def test_sample_cli_errors(bench, tmp_path, capsys):
-    assert main(["sample", "--test", "9-9", "--bench", bench.source, "--runs", str(tmp_path)]) == 2
+    assert main(["sample", "--tests", "9-9", "--bench", bench.source, "--runs", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "9-9" in err and err.count("\n") == 1
-    assert main(["sample", "--test", "0.5-0.5", "--params", "theta9", "--bench", bench.source,
+    assert main(["sample", "--tests", "0.5-0.5", "--params", "theta9", "--bench", bench.source,
                  "--runs", str(tmp_path)]) == 2
     assert "theta9" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
@@ -93,7 +93,7 @@ def test_point_method_writes_point_fit_and_ga_is_its_alias(bench, tmp_path, caps
     docs = []
     for method in ("point", "ga"):
         out = tmp_path / method
-        assert main(["sample", "--test", "0.5-0.5", "--method", method, "--bench", bench.source, "--runs", str(out),
+        assert main(["sample", "--tests", "0.5-0.5", "--method", method, "--bench", bench.source, "--runs", str(out),
                      "--seed", "2"]) == 0
         docs.append(json.loads((out / "damper1" / "0.5-0.5" / "theta1" / "ga.json").read_text()))
     doc = docs[0]

@@ -18,7 +18,7 @@ from sbcal.cli import main
 from sbcal.model.damper import resolve_damper
 from sbcal.diagnosis.diagnose import DiagnoseConfig
 from sbcal.diagnosis.fits import _fit, fit_jobs
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 from sbcal.pipeline import Settings, sample_tests
 from sbcal.inference.sampler import SamplerConfig
 from sbcal.core.seeds import job_seed, seed_key

@@ -13,7 +13,7 @@ from sbcal.model.fem import STANDARD_GRID_HZ, arm_curvatures, arm_impedance, fre
 from sbcal.model.reference import _beam_k, _beam_m
 from sbcal.model.cable_element import ElementCableModel
 from sbcal.model.cable_zones import CableZone
-from sbcal.model.hysteresis import LognormalIwanLaw
+from sbcal.model.laws import LognormalIwanLaw
 from sbcal.simulate.virtual_bench import (
     BENCH_ELEMENTS, DEFAULT_TESTS, EFFECTS, EXTRA_EFFECTS, BenchConfig, FixtureResonance, SlipLaw, parse_effect,
     record, response, test_amplitude,

@@ -16,7 +16,7 @@ import pytest
 import sbcal.simulate.virtual_bench as vb
 from sbcal.core.errors import InputError
 from sbcal.model.cable import CableModel
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 from sbcal.simulate.virtual_bench import (BENCH_SECTIONS, BENCH_ZONE_SECTIONS, BenchConfig, CableZone, SlipLaw,
                                           parse_effect, record, response)
 

@@ -1,4 +1,4 @@
-"""A strand-slip law that changes along the arm (:class:`sbcal.model.zones.ZonedLaw`) in the fast cable model.
+"""A strand-slip law that changes along the arm (:class:`sbcal.model.laws.zones.ZonedLaw`) in the fast cable model.
 
 The zoned model's loads satisfy the arm equations with each section's own zone law (an independent
 evaluation), all ratios 1 is the uniform law, the quadrature converges with the sections per zone,
@@ -14,8 +14,8 @@ from scipy.optimize import brentq
 from sbcal.core.errors import InputError
 from sbcal.model.cable import CableModel
 from sbcal.model.fem import STANDARD_GRID_HZ
-from sbcal.model.hysteresis import law_for, zoned
-from sbcal.model.zones import ZONE_PARAMETERS, ZonedLaw
+from sbcal.model.laws import law_for, zoned
+from sbcal.model.laws.zones import ZONE_PARAMETERS, ZonedLaw
 
 from .test_cable import _node_masses
 

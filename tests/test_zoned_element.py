@@ -1,6 +1,6 @@
 """A cable whose law changes along the arm in the element model (the virtual bench's), and on the bench.
 
-The zones of a :class:`sbcal.model.zones.ZonedLaw` and fixed :class:`sbcal.model.cable_element.CableZone`
+The zones of a :class:`sbcal.model.laws.zones.ZonedLaw` and fixed :class:`sbcal.model.cable_element.CableZone`
 zones of any family: all ratios 1 is the uniform law, the mesh has nodes at the zone boundaries,
 refinement converges, the state is a fixed point of a plain assembly with each element's own zone
 law, the fast zoned model agrees, the bench's scatter acts on the zones, bad input is one line.
@@ -14,7 +14,7 @@ from sbcal.model.cable import CableModel
 from sbcal.model.cable_element import ElementCableModel
 from sbcal.model.cable_zones import MIN_ZONE_ELEMENTS, CableZone
 from sbcal.model.fem import STANDARD_GRID_HZ
-from sbcal.model.hysteresis import law_for
+from sbcal.model.laws import law_for
 from sbcal.simulate.virtual_bench import BenchConfig, SlipLaw, parse_effect, record, response
 
 from .test_cable import _dense_arm

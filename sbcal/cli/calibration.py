@@ -51,10 +51,11 @@ def cmd_simulate(args) -> int:
 
 def add_sample(sub):
     p = sub.add_parser("sample", help="posterior of EJ and beta per test (emcee), stored as ArviZ netCDF",
-                       description="Sample the posterior of one test (--test) or every test (--all) of a "
+                       description="Sample the posterior of some tests (--tests) or every test (--all) of a "
                                    "damper and store runs/<damper>/<test>/<paramset>/posterior.nc + summary.json.")
     which = p.add_mutually_exclusive_group(required=True)
-    which.add_argument("--test", action="append", metavar="LABEL", help="test label (repeatable)")
+    which.add_argument("--tests", nargs="+", metavar="LABEL", help="test labels")
+    deprecated_alias(which, "--test", "--tests", "tests", append=True)
     which.add_argument("--all", action="store_true", help="every test of the damper in the bench file")
     p.add_argument("--damper", default="damper1", help="bundled damper name or TOML path (default damper1)")
     bench_options(p)
@@ -80,7 +81,7 @@ def cmd_sample(args) -> int:
 
     damper = resolve_damper(args.damper)
     bench = bench_for(args)
-    tests = bench.tests(damper.name) if args.all else args.test
+    tests = bench.tests(damper.name) if args.all else args.tests
     for t in tests:
         bench.test(damper.name, t)  # fail early, before any sampling, on an unknown label
     settings = settings_from(args)

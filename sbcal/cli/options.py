@@ -30,18 +30,21 @@ class _Deprecated(argparse.Action):
     """An old spelling of an option: stores to the new one's ``dest`` and says so in an :class:`InputWarning` (one
     line, once: :func:`sbcal.cli.app.main` prints them)."""
 
-    def __init__(self, option_strings, dest, new: str = "", **kw):
-        self.new = new
+    def __init__(self, option_strings, dest, new: str = "", append: bool = False, **kw):
+        self.new, self.append = new, append
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser, namespace, values, option_string=None):
         warnings.warn(f"{option_string} is deprecated (kept for one release): use {self.new}", InputWarning, stacklevel=2)
+        if self.append:  # a repeatable old flag feeding a list-valued new one
+            values = list(getattr(namespace, self.dest, None) or []) + [values]
         setattr(namespace, self.dest, values)
 
 
-def deprecated_alias(p, old: str, new: str, dest: str) -> None:
-    """Keep ``old`` working for one release as a hidden spelling of ``new`` (one deprecation line when used)."""
-    p.add_argument(old, dest=dest, action=_Deprecated, new=new, help=argparse.SUPPRESS)
+def deprecated_alias(p, old: str, new: str, dest: str, *, append: bool = False) -> None:
+    """Keep ``old`` working for one release as a hidden spelling of ``new`` (one deprecation line when used);
+    ``append``: the old flag was repeatable, one value each time, the new one takes a list."""
+    p.add_argument(old, dest=dest, action=_Deprecated, new=new, append=append, help=argparse.SUPPRESS)
 
 
 def quiet_option(p) -> None:

@@ -98,11 +98,19 @@ def cmd_diagnose(args) -> int:
 
 # --- cable -------------------------------------------------------------------------------------
 
-_LAW_ALIASES = {"dahl": "bouc_wen", "iwan": "iwan5"}  # the families that contain Dahl's and Segalman's laws
-
 
 def add_cable(sub):
-    from ..model.hysteresis import FITTED_LAWS, zoned
+    from ..model.laws import LAWS, aliases, fitted_laws, zoned
+
+    families = fitted_laws()
+    named = {law: [a for a, f in aliases().items() if f == law] for law in families}
+
+    def said(law):  # a family in the help: what it is, its aliases, where it is compared
+        cls = LAWS[law]
+        more = [f"alias {', '.join(named[law])}"] if named[law] else []
+        if cls.min_tests > 1:
+            more.append(f"compared only where every cable state has {cls.min_tests} tests or more")
+        return f"{law} ({'; '.join([cls.summary or cls.__name__] + more)})"
 
     p = sub.add_parser("cable", help="fit the cable's hysteresis law jointly over all amplitudes of each cable state",
                        description="Fit one strand-slip law per cable state (dry; a test suffix such as -oiled is "
@@ -111,13 +119,11 @@ def add_cable(sub):
                                    "<runs>/<damper>/cable-<state>/posterior.nc + summary.json.")
     damper_options(p)
     p.add_argument("--law", default="best",
-                   choices=list(FITTED_LAWS) + [zoned(law) for law in FITTED_LAWS] + list(_LAW_ALIASES) + ["best"],
-                   help="law family: bouc_wen (the Bouc-Wen family, Dahl's law at sharpness 1; alias dahl), iwan5 "
-                        "(Iwan with two cut-offs, Segalman's 4-parameter law as a limit; alias iwan), iwan_tail (Iwan "
-                        "whose density ends in a power-law tail; compared only where every cable state has two tests "
-                        "or more); each with _zoned: the law changing along the arm, with clamp and mass zones of "
-                        "their own (docs/cable.md); or best (every family that can be compared, then the best one's "
-                        "zoned law where the uniform law leaves a misfit; the best converged by PSIS-LOO; default)")
+                   choices=list(families) + [zoned(law) for law in families] + list(aliases()) + ["best"],
+                   help="law family: " + ", ".join(said(law) for law in families) + "; each with _zoned: the law "
+                        "changing along the arm, with clamp and mass zones of their own (docs/cable.md); or best "
+                        "(every family that can be compared, then the best one's zoned law where the uniform law "
+                        "leaves a misfit; the best converged by PSIS-LOO; default)")
     p.add_argument("--priors", metavar="PATH", help="prior file of the geometry boxes (default: the bundled one)")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--runs", default="runs", metavar="DIR", help="run store (default runs/)")
@@ -135,7 +141,9 @@ def cmd_cable(args) -> int:
 
     damper = resolve_damper(args.damper)
     data = cleaned_for(bench_for(args), [damper], store=args.runs, settings=settings_from(args), quiet=args.quiet)
-    laws = None if args.law == "best" else (_LAW_ALIASES.get(args.law, args.law),)
+    from ..model.laws import aliases
+
+    laws = None if args.law == "best" else (aliases().get(args.law, args.law),)
     fits, comparison = fit_damper_cable(damper, data, laws=laws, seed=args.seed, prior_path=args.priors,
                                         workers=args.workers, progress=not args.quiet)
     best = comparison["best"]

@@ -46,7 +46,7 @@ class CableRun:
     draws : dict of str -> ndarray, shape (n_draws,)
         Posterior draws by parameter (chains pooled).
     law : str
-        The law's family (:data:`sbcal.model.hysteresis.LAWS`).
+        The law's family (:data:`sbcal.model.laws.LAWS`).
     calibration : Damper or None
         The calibration damper, from the stored ``damper_values`` (None when not stored).
     curvature_range : tuple of float
@@ -139,7 +139,7 @@ def load_cable_run(run) -> CableRun:
         One line: no such directory, no cable-law run in it, its posterior missing.
     """
     from ..inference.cable_fit import read_cable
-    from ..model.hysteresis import law_for
+    from ..model.laws import law_for
 
     if isinstance(run, CableRun):
         return run
@@ -216,7 +216,7 @@ def subset_indices(n_total: int, n_draws: int, rng) -> np.ndarray:
 
 def cable_params(cable: CableRun, idx, bench_effects: bool, own_offsets: bool) -> dict:
     """The cable law's posterior draws ``idx`` by parameter (with the offsets and bench effects asked for)."""
-    from ..model.hysteresis import law_for
+    from ..model.laws import law_for
 
     names = ["EJ_min", "beta_material", *law_for(cable.law).parameter_names]
     if own_offsets:

@@ -64,7 +64,7 @@ class CableImpedance:
 
     def __post_init__(self):
         from ..model.cable import CableModel
-        from ..model.hysteresis import law_for
+        from ..model.laws import law_for
 
         object.__setattr__(self, "model", CableModel(law_for(self.law)))
 

@@ -19,8 +19,8 @@ from ..inference.priors import composed_prior
 from ..inference.sampler import SamplerConfig, sample
 from ..inference.stats import loo
 from ..model.extensions import model_for
-from ..model.hysteresis import FITTED_LAWS
-from ..model.zones import ZONED_SUFFIX
+from ..model.laws import fitted_laws
+from ..model.laws.zones import ZONED_SUFFIX
 
 
 __all__ = ["DiagnoseConfig", "posterior_record", "CURVE_QUANTITIES", "model_name", "fit_jobs", "run_fits", "choose_law",
@@ -55,7 +55,7 @@ class DiagnoseConfig:
         Screening: lag-1 correlation of the residuals over frequency (structured misfit) that admits
         the extensions without a specific signature, or curvature correlation for strand slip.
     laws : tuple of str
-        The cable-law families fitted for ``strand_slip`` (:data:`sbcal.model.hysteresis.FITTED_LAWS`), those
+        The cable-law families fitted for ``strand_slip`` (:func:`sbcal.model.laws.fitted_laws`), those
         of them a damper's cable states have the tests for (:func:`sbcal.inference.cable_fit.compared_laws`).
     secondary : bool
         Search for a second effect on top of the verdict's.
@@ -75,7 +75,7 @@ class DiagnoseConfig:
     global_alpha: float = GLOBAL_ALPHA
     clear_se: float = 4.0
     min_explained: float = 0.8
-    laws: tuple = FITTED_LAWS
+    laws: tuple = field(default_factory=fitted_laws)
     screen_t: float = 3.0
     screen_share: float = 0.05
     screen_corr: float = 0.3

@@ -8,6 +8,7 @@ import string
 import numpy as np
 
 from ..inference.likelihood import JointLikelihood
+from ..model.laws import parameter_units
 
 
 __all__ = ["effect_parameters"]
@@ -19,10 +20,15 @@ def _quantiles(v) -> dict:
     return {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
 
 
-_UNITS = {"EJ_min": "N m^2", "delta_EJ": "N m^2", "chi_slip": "1/m", "chi_micro": "1/m", "chi_macro": "1/m",
-          "sharpness": "1", "density_exponent": "1", "macro_ratio": "1", "beta_material": "1",
-          "fixture_mass_kg": "kg", "delay_s": "s", "beta_viscous": "1", "beta1": "1", "beta2": "1",
+_UNITS = {"EJ_min": "N m^2", "beta_material": "1", "fixture_mass_kg": "kg", "delay_s": "s", "beta_viscous": "1",
+          "beta1": "1", "beta2": "1",
           "rocking_rad_per_m": "rad/m", "ej_exponent": "1", "EJ": "N m^2", "beta": "1", "a1": "m", "a2": "m"}
+
+
+def _unit(name: str) -> str:
+    """A parameter's SI unit: a law's or a zone's as its law states it (:func:`sbcal.model.laws.parameter_units`),
+    else the cable's, the extensions' and the FE model's ("" when unknown)."""
+    return parameter_units().get(name) or _UNITS.get(name, "")
 
 
 def _scale_factor(estimates, se) -> float:
@@ -83,7 +89,7 @@ def effect_parameters(effect: str, fits: dict, keys, baseline_names, *, each_tes
         out["per_group"] = {}
         for key in keys:  # one parameter set per cable state; "values" is the state with the most tests
             fit = fits[key]
-            out["per_group"][key[1]] = {n: dict(_quantiles(fit["params"][n]), unit=_UNITS.get(n, "")) for n in own}
+            out["per_group"][key[1]] = {n: dict(_quantiles(fit["params"][n]), unit=_unit(n)) for n in own}
         main = max(keys, key=lambda k: len(fits[k]["mu_mean"]))
         out["values"] = out["per_group"][main[1]]
         out["law"] = fits[main]["law"]
@@ -104,7 +110,7 @@ def effect_parameters(effect: str, fits: dict, keys, baseline_names, *, each_tes
         combined = _combined(per)
         # the largest factor applied: between the states', or within a state between its tests
         combined["scale_factor"] = max([combined["scale_factor"]] + [v.get("scale_factor", 1.0) for v in per.values()])
-        out["values"][n] = dict(combined, unit=_UNITS.get(n, ""))
+        out["values"][n] = dict(combined, unit=_unit(n))
         for t, v in per.items():
             out["per_test"].setdefault(t, {})[n] = {k: v[k] for k in ("median", "q05", "q95", "scale_factor", "tests")
                                                     if k in v}

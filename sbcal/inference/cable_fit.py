@@ -2,7 +2,7 @@
 
 A *cable state* is what a test label's suffix says (``1-1-oiled`` is the oiled cable; tests without
 a suffix are the ``dry`` cable). All tests of one state share one cable — ``EJ_min``,
-``beta_material`` and the law's parameters (:mod:`sbcal.model.hysteresis`) — and all tests of one damper
+``beta_material`` and the law's parameters (:mod:`sbcal.model.laws`) — and all tests of one damper
 share its geometry (the mass offsets ``a1``, ``a2``). The forward model is the distributed cable of
 :class:`sbcal.model.cable.CableModel` on the concatenated lines of the state's tests (each test's commanded
 amplitude per line; a sweep restarts at each test), the likelihood the noise-only multivariate t of
@@ -35,8 +35,8 @@ from ..data.labels import cable_state, state_tests
 from ..model.cable import DEFAULT_SECTIONS, CableModel
 from ..model.cable_harmonics import HarmonicBalance
 from ..model.damper import Damper
-from ..model.hysteresis import FITTED_LAWS, law_for, zoned
-from ..model.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
+from ..model.laws import fitted_laws, law_for, zoned
+from ..model.laws.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
 from .calibrate import likelihood_for
 from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, materiality, predictive_check, qualifier
 from .distortion import predicted_distortion
@@ -76,7 +76,7 @@ class CableForward:
     Attributes
     ----------
     law : str
-        A family of :data:`sbcal.model.hysteresis.LAWS`.
+        A family of :data:`sbcal.model.laws.LAWS`.
     amplitude_mm_pp : ndarray, shape (n_lines,)
         Commanded amplitude per line [mm p-p].
     segments : ndarray of int, shape (n_lines,)
@@ -354,7 +354,7 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
     tests : sequence of str
         The tests of one cable state.
     law : str
-        A fitted family (:data:`sbcal.model.hysteresis.FITTED_LAWS`).
+        A fitted family (:func:`sbcal.model.laws.fitted_laws`).
     seed : int
         The user's seed; the fit's stream is :func:`cable_seed` of it.
     effects : sequence of str
@@ -407,7 +407,7 @@ def compare_families(fits: dict) -> dict:
 def law_curves(law: str, draws: dict, chi, zone: str = "middle") -> tuple[np.ndarray, np.ndarray]:
     """The cable law's equivalent rigidity ``Re EJ*`` [N m^2] and loss factor ``Im EJ* / Re EJ*`` at
     curvature amplitudes ``chi`` [1/m], per posterior draw: two arrays (n_draws, len(chi)). A zoned
-    law's (:mod:`sbcal.model.zones`) in its ``zone`` (``middle``, ``clamp`` or ``mass``)."""
+    law's (:mod:`sbcal.model.laws.zones`) in its ``zone`` (``middle``, ``clamp`` or ``mass``)."""
     model = law_for(law)
     chi = np.asarray(chi, float)[None, :]
     col = {k: np.asarray(v, float).reshape(-1, 1) for k, v in draws.items()}
@@ -512,7 +512,7 @@ def read_cable(directory) -> tuple[dict, dict]:
 
 
 def zoned_candidate(comparison: dict, partial: bool) -> str | None:
-    """The zoned family (:mod:`sbcal.model.zones`) to fit after the uniform ones, or None.
+    """The zoned family (:mod:`sbcal.model.laws.zones`) to fit after the uniform ones, or None.
 
     The zoned law of the family with the highest ELPD, converged or not: a misspecified uniform law
     need not converge where its zoned law would (a uniform fit of a cable that is stiffer at its ends
@@ -544,13 +544,13 @@ def zoned_start(uniform: dict, prior: Prior) -> dict:
 def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, prior_path=None,
                      workers: int = 2, progress: bool = True) -> tuple[dict, dict]:
     """Every cable state of a damper under every family (default: :func:`compared_laws` of
-    :data:`FITTED_LAWS`, then the best one's zoned law where :func:`zoned_candidate` says so);
+    :func:`~sbcal.model.laws.fitted_laws`, then the best one's zoned law where :func:`zoned_candidate` says so);
     ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of :func:`compare_families`.
     The harmonic refit comes after (:func:`sbcal.inference.harmonic_refit.refit_harmonics`)."""
     tests = list(data.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
     default = laws is None
-    laws = compared_laws(FITTED_LAWS, tests) if default else tuple(laws)
+    laws = compared_laws(fitted_laws(), tests) if default else tuple(laws)
     fits = {}
 
     def fit_law(law, starts=None):

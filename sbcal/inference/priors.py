@@ -283,16 +283,39 @@ def composed_prior(primary: str, secondary, damper: Damper, *, base_path=None) -
 
 
 def cable_prior(law: str, damper: Damper, path=None, base_path=None) -> Prior:
-    """The prior of a cable law family (``priors/cable.toml``): the cable's and the law's parameters
-    plus the ``base`` geometry of the default prior file (same schema as :func:`extension_prior`). A
-    zoned family (``iwan5_zoned``, :mod:`sbcal.model.zones`) is its middle's prior plus the table
-    ``[zones]`` (the zones' lengths and ratios)."""
-    from ..model.zones import ZONED_SUFFIX
+    """The prior of a cable law family: the ``base`` geometry of the default prior file and the cable's
+    own parameters (``[cable]`` of ``priors/cable.toml``), then the law's parameters in the boxes the law
+    states (:attr:`sbcal.model.laws.base.LawParameter.prior`) unless the file's ``[LAW.parameters.NAME]``
+    overrides one. A zoned family (``iwan5_zoned``, :mod:`sbcal.model.laws.zones`) is its middle's prior
+    plus the table ``[zones]`` (the zones' lengths and ratios)."""
+    from ..model.laws import LAWS, ZONED_SUFFIX, law_for
 
-    if not law.endswith(ZONED_SUFFIX):
-        return extension_prior(law, damper, path, base_path, bundled="cable.toml")
-    middle = extension_prior(law[:-len(ZONED_SUFFIX)], damper, path, base_path, bundled="cable.toml")
-    zones = extension_prior("zones", damper, path, base_path, bundled="cable.toml")
-    boxes = {n: middle.box(n) for n in middle.names}
-    boxes.update({n: zones.box(n) for n in zones.names if n not in boxes})
+    law_for(law)  # one line for an unknown law
+    family = law[:-len(ZONED_SUFFIX)] if law.endswith(ZONED_SUFFIX) else law
+    cable = extension_prior("cable", damper, path, base_path, bundled="cable.toml")
+    boxes = {n: cable.box(n) for n in cable.names}
+    doc, src = _read(path, "cable.toml")
+    table = doc.get(family, {})
+    overrides = table.get("parameters", {}) if isinstance(table, dict) else None
+    if not isinstance(overrides, dict):
+        raise InputError(f"{src}: key '{family}.parameters': expected a table")
+    own = LAWS[family].parameters
+    unknown = sorted(set(overrides) - {p.name for p in own})
+    if unknown:
+        raise InputError(f"{src}: key '{family}.parameters.{unknown[0]}': not a parameter of the {family} law "
+                         f"({', '.join(p.name for p in own)})")
+    for p in own:
+        if p.name in overrides:
+            boxes[p.name] = _bounds(src, f"{family}.parameters.{p.name}", overrides[p.name], p.name, damper)
+        elif p.prior:
+            dist, lower, upper, *relative = p.prior
+            spec = ({"dist": dist, "fraction_of_ej_static": [lower, upper]} if relative
+                    else {"dist": dist, "lower": lower, "upper": upper})
+            boxes[p.name] = _bounds(f"the {family} law", f"{p.name}.prior", spec, p.name, damper)
+        else:
+            raise InputError(f"{src}: the {family} law's parameter {p.name!r} has no prior box; give "
+                             f"[{family}.parameters.{p.name}]")
+    if law != family:
+        zones = extension_prior("zones", damper, path, base_path, bundled="cable.toml")
+        boxes.update({n: zones.box(n) for n in zones.names if n not in boxes})
     return Prior.from_boxes(law, boxes)

@@ -4,7 +4,7 @@ Each section of the messenger cable has the complex secant rigidity::
 
     EJ*(chi_a) = EJ_min (1 + i beta_material) + EJ_slip*(chi_a)
 
-with ``EJ_slip*`` the first-harmonic describing function of a law of :mod:`sbcal.model.hysteresis` at the
+with ``EJ_slip*`` the first-harmonic describing function of a law of :mod:`sbcal.model.laws` at the
 section's curvature amplitude (equivalent linearisation). The damper is that of :mod:`sbcal.model.fem`:
 lumped end masses ``[[m, m a], [m a, J + m a^2]]``, consistent cable mass, the clamp driven at
 ``X0 = amplitude_mm_pp / 2 * 1e-3`` m (and rotated by ``r X0`` with base rocking), the clamp's own
@@ -42,15 +42,15 @@ from . import cable_kernel
 from .cable_sections import (TINY, Arms, Compliance, checked_grid, compliance_table, gauss, linear_compliance,
                              segments_from_frequencies)
 from .damper import GEOMETRY, Damper
-from .hysteresis import HysteresisLaw
-from .zones import ZonedLaw
+from .laws import HysteresisLaw
+from .laws.zones import ZonedLaw
 
 
 __all__ = ["DEFAULT_SECTIONS", "CableBase", "CableState", "CableModel", "segments_from_frequencies"]
 
 DEFAULT_SECTIONS = 8
 """Gauss-Legendre sections per arm of :class:`CableModel` (the convergence study of ``docs/cable.md``);
-with a zoned law (:class:`sbcal.model.zones.ZonedLaw`), of the arm's middle zone."""
+with a zoned law (:class:`sbcal.model.laws.zones.ZonedLaw`), of the arm's middle zone."""
 
 DEFAULT_ZONE_SECTIONS = 3
 """Gauss-Legendre sections of each boundary zone of a zoned law (``docs/cable.md``)."""
@@ -202,7 +202,7 @@ class CableModel(CableBase):
     ===================  ======  =============================================================
 
     The law must make ``a |EJ*(a)|`` increase with the curvature amplitude ``a`` (true for
-    ``EJ_min > 0`` and the laws of :mod:`sbcal.model.hysteresis`): a section's moment then fixes its
+    ``EJ_min > 0`` and the laws of :mod:`sbcal.model.laws`): a section's moment then fixes its
     curvature. Sets where the table finds otherwise, or outside the law's domain, give NaN.
 
     Attributes
@@ -250,12 +250,12 @@ class CableModel(CableBase):
 
     @property
     def zoned(self) -> bool:
-        """The law changes along the arm (:class:`sbcal.model.zones.ZonedLaw`)."""
+        """The law changes along the arm (:class:`sbcal.model.laws.zones.ZonedLaw`)."""
         return isinstance(self.law, ZonedLaw)
 
     def _table(self, p, n_sets) -> Compliance:
         """The sections' compliance table: a row per parameter set; a zoned law's rows are its zones'
-        (:data:`sbcal.model.zones.ZONES` order), ``zone * n_sets + set``."""
+        (:data:`sbcal.model.laws.zones.ZONES` order), ``zone * n_sets + set``."""
         lin = np.broadcast_to(p["EJ_min"] * (1 + 1j * p["beta_material"]), (n_sets,)).astype(complex)
         if self.law is None:
             return linear_compliance(lin)

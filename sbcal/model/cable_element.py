@@ -2,7 +2,7 @@
 rigidity from the law at its own curvature, solved by Newton iterations on the curvatures
 (``docs/cable.md``, "Two models").
 
-The law may change along the arm: a :class:`sbcal.model.zones.ZonedLaw` (the fitted model's zones, its
+The law may change along the arm: a :class:`sbcal.model.laws.zones.ZonedLaw` (the fitted model's zones, its
 parameters given to :meth:`ElementCableModel.state` like every law parameter), or fixed boundary zones
 :class:`sbcal.model.cable_zones.CableZone` with a law of their own, of any family (richer than the fitted model: the virtual
 bench's). Either way the mesh puts nodes at the zone boundaries and each element takes its zone's law.
@@ -19,7 +19,7 @@ from .cable import CableBase
 from .cable_sections import FD_LOG_STEP, TINY, checked_grid
 from .cable_zones import UNIT_CHI, UNIT_EJ, CableZone, zone_spec, zoned_mesh
 from .damper import Damper
-from .zones import ZonedLaw
+from .laws.zones import ZonedLaw
 
 
 __all__ = ["DEFAULT_N_ELEMENTS", "ElementCableState", "ElementCableModel"]
@@ -263,7 +263,7 @@ class ElementCableModel(CableBase):
     """The distributed strand-slip cable: ``f_uu`` and its steady state for parameter sets.
 
     Parameters (keyword arguments of :meth:`state`): those of :class:`sbcal.model.cable.CableModel`
-    (with a :class:`sbcal.model.zones.ZonedLaw`, its zones' too: ``clamp_zone`` and ``mass_zone`` a
+    (with a :class:`sbcal.model.laws.zones.ZonedLaw`, its zones' too: ``clamp_zone`` and ``mass_zone`` a
     scalar or equal across the sets, since they place the mesh's nodes).
 
     A zoned cable (a ``ZonedLaw``, or :attr:`zones`) has nodes at its zone boundaries: each zone gets
@@ -335,7 +335,7 @@ class ElementCableModel(CableBase):
 
     @property
     def zoned(self) -> bool:
-        """The law changes along the arm (a :class:`sbcal.model.zones.ZonedLaw` or :attr:`zones`)."""
+        """The law changes along the arm (a :class:`sbcal.model.laws.zones.ZonedLaw` or :attr:`zones`)."""
         return bool(self.zones) or isinstance(self.law, ZonedLaw)
 
     def _zone_laws(self, p: dict, zone_scale):
@@ -524,7 +524,7 @@ class ElementCableModel(CableBase):
             parameter values, ``ej`` on those in N m^2, ``chi`` on those in 1/m (the virtual bench's
             re-clamping scatter; the values a zone takes from the middle follow the middle's).
         **params : float or array_like, shape (n_sets,)
-            See :class:`sbcal.model.cable.CableModel` (and :class:`sbcal.model.zones.ZonedLaw`: its
+            See :class:`sbcal.model.cable.CableModel` (and :class:`sbcal.model.laws.zones.ZonedLaw`: its
             ``clamp_zone`` and ``mass_zone`` one value for all sets).
 
         Returns

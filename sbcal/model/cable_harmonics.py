@@ -9,7 +9,7 @@ with it. :class:`HarmonicBalance` solves the same statically determinate arms wi
 - each section: ``EJ_min (1 + i beta_material) chi_h + M_slip[chi]_h = p0_h eta + p1_h`` per harmonic,
   the slip moment evaluated over one period in time (alternating frequency-time): a rate-independent
   law under an odd periodic curvature with one maximum ``chi_a`` per period runs its steady loop's
-  branches (:meth:`sbcal.model.law_base.HysteresisLaw.loop_branch`), so every law is exact in time;
+  branches (:meth:`sbcal.model.laws.base.HysteresisLaw.loop_branch`), so every law is exact in time;
 - each arm: ``S_h + N_h c_h - N_h p_h = 0`` with ``N_h`` the node's inertia at ``h omega`` and the
   clamp's motion only in the first harmonic (``c_h = 0`` beyond it), as the first-harmonic model has.
 
@@ -21,7 +21,7 @@ loss stays hysteretic (``i beta_material`` at every harmonic).
 
 A section whose curvature has more than one maximum per period (inner loops: near the arm's point of
 zero moment, where the higher harmonics dominate) is evaluated by the law's periodic operator instead
-(:meth:`sbcal.model.law_base.HysteresisLaw.periodic_moment`: Masing's rule with Madelung's memory,
+(:meth:`sbcal.model.laws.base.HysteresisLaw.periodic_moment`: Masing's rule with Madelung's memory,
 or the Bouc-Wen state stepped exactly), its Jacobian without the reversal points' motion.
 """
 
@@ -65,7 +65,7 @@ class HarmonicState:
     converged : ndarray of bool, shape (n_sets, n_freq)
     single_loop : ndarray of bool, shape (n_sets, n_freq)
         Every section's curvature has one maximum per period (else some sections ran inner loops,
-        evaluated by :meth:`sbcal.model.law_base.HysteresisLaw.periodic_moment`).
+        evaluated by :meth:`sbcal.model.laws.base.HysteresisLaw.periodic_moment`).
     residual : ndarray, shape (n_sets, n_freq)
         Relative size of the last Newton step.
     orders : tuple of int

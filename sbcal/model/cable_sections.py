@@ -10,7 +10,7 @@ from functools import cached_property
 import numpy as np
 
 from ..core.errors import InputError
-from .hysteresis import HysteresisLaw
+from .laws import HysteresisLaw
 
 
 __all__ = ["FD_LOG_STEP", "TINY", "checked_grid", "Compliance", "linear_compliance", "compliance_table", "Arms",
@@ -218,7 +218,7 @@ class Arms:
     force: tuple  # (fa, fb, fc) real
     row: np.ndarray  # table row (parameter set) of each entry, intp
     length: np.ndarray  # arm length [m]
-    # a zoned cable (sbcal.model.zones): the sections per parameter set, eta (Q, n_sets) from the mass node,
+    # a zoned cable (sbcal.model.laws.zones): the sections per parameter set, eta (Q, n_sets) from the mass node,
     # weights w (Q, n_sets) and each section's zone (Q,) (CableModel._zone_rule); None: the model's one rule
     rule: tuple | None = None
 

@@ -11,7 +11,7 @@ is ``p0 eta + p1`` (``eta = 1 - s/L``) and each Gauss section ``q`` of the model
 
 (``EJ_q`` the section's ``EJ_min``, its zone's ratio with a zoned law; the material loss ``EJ_min (1 +
 i beta)`` of the first-harmonic model is this viscous term in phase time, exact at the fundamental;
-``M_slip`` from :mod:`sbcal.model.law_time`: a Masing law's Jenkins population is built against the
+``M_slip`` from :mod:`sbcal.model.laws.steppers`: a Masing law's Jenkins population is built against the
 section's ``EJ_min (1 + i beta)``, so that its error stays small against the section's loss too). The node's equation is the frequency-domain residual
 ``S + N c - N p = 0`` of :class:`~sbcal.model.cable_sections.Arms` in phase time::
 
@@ -56,7 +56,7 @@ from ..core.errors import InputError
 from .cable import CableModel
 from .cable_sections import checked_grid, gauss
 from .damper import Damper
-from .law_time import law_stepper
+from .laws.steppers import law_stepper
 
 
 __all__ = ["DEFAULT_STEPS_PER_PERIOD", "TimeResponse", "time_response"]
@@ -544,7 +544,7 @@ def time_response(model: CableModel, damper: Damper, freq_hz, amplitude_mm_pp, *
         Scale the inertia and the material loss so the first harmonic of a linear cable is exact
         (module docstring); False: plain Newmark (frequency error ``(2 pi / steps)^2 / 12``).
     resolution : float
-        Cell density of the Jenkins populations of Masing laws (:func:`sbcal.model.law_time.jenkins_population`).
+        Cell density of the Jenkins populations of Masing laws (:func:`sbcal.model.laws.steppers.jenkins_population`).
     start : {"rest", "model"}
         ``"rest"``: the bench's way, from rest with the ramp. ``"model"``: on the first-harmonic model's
         steady state (:meth:`CableModel.state`) with the base at full amplitude from ``theta = 0``, the

@@ -1,7 +1,7 @@
 """Boundary zones of the element cable model (the virtual bench's): fixed zones with a law of their own,
 of any family (:class:`CableZone`), and the zoned mesh (nodes at the zone boundaries).
 
-Richer than the fitted model's zones (:class:`sbcal.model.zones.ZonedLaw`, the middle's family scaled):
+Richer than the fitted model's zones (:class:`sbcal.model.laws.zones.ZonedLaw`, the middle's family scaled):
 the bench can make a cable whose clamp zone follows another law than its middle.
 """
 
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import InputError
-from .hysteresis import law_for
-from .zones import ZONED_SUFFIX
+from .laws import law_for
+from .laws.zones import ZONED_SUFFIX
 
 
 __all__ = ["MIN_ZONE_ELEMENTS", "UNIT_EJ", "UNIT_CHI", "CableZone", "zone_spec", "zoned_mesh"]
@@ -28,7 +28,7 @@ UNIT_EJ, UNIT_CHI = "N m^2", "1/m"
 class CableZone:
     """A boundary zone of each arm with a law of its own and fixed parameter values (the element model's).
 
-    Richer than :class:`sbcal.model.zones.ZonedLaw`, whose zones are the middle's family scaled: a
+    Richer than :class:`sbcal.model.laws.zones.ZonedLaw`, whose zones are the middle's family scaled: a
     zone here may follow another family (``dahl`` or ``lognormal_iwan`` where the cable is swaged
     into the clamp, ``iwan5`` in the free middle). Its law parameters are
 
@@ -36,7 +36,7 @@ class CableZone:
       ``zone_scale``, the N m^2 ones times its first factor, the 1/m ones times its second);
     - when the zone's family is the middle's, every other parameter is the middle's (per parameter
       set), ``delta_EJ`` times :attr:`delta_EJ_ratio` and every 1/m parameter times :attr:`chi_ratio`
-      (as a :class:`~sbcal.model.zones.ZonedLaw` zone);
+      (as a :class:`~sbcal.model.laws.zones.ZonedLaw` zone);
     - for another family, ``delta_EJ`` (if not given) is the middle's times :attr:`delta_EJ_ratio`;
       every other parameter must be given.
 
@@ -50,7 +50,7 @@ class CableZone:
     length : float
         The zone's length as a fraction of the arm, in (0, 0.5).
     law : str or None
-        Its family (:data:`sbcal.model.hysteresis.LAWS`); None: the middle's.
+        Its family (:data:`sbcal.model.laws.LAWS`); None: the middle's.
     params : tuple of (str, float)
         Fixed parameter values of the zone's law (sorted by name once checked).
     EJ_min_ratio, delta_EJ_ratio, chi_ratio : float

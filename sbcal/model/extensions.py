@@ -7,7 +7,7 @@ Each extension is a forward-model variant with a stable id, its own parameters a
 id                             scope  model (``f`` is :func:`sbcal.model.fem.dynamic_stiffness`)
 ============================== ====== ==========================================================
 strand_slip                    joint  the distributed cable of :mod:`sbcal.model.cable`: every section of
-                                      the arms follows one hysteresis law (:mod:`sbcal.model.hysteresis`),
+                                      the arms follows one hysteresis law (:mod:`sbcal.model.laws`),
                                       one parameter set for every amplitude of a cable state
                                       (:mod:`sbcal.inference.cable_fit`)
 fixture_mass                   test   ``f - omega^2 m_f``

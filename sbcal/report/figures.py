@@ -156,7 +156,7 @@ def law_figure(cables: dict, path: Path) -> str:
     """The cable law of each state: EJ and loss factor against curvature amplitude, median and 90 %
     band, with the curvature range each test reached."""
     from ..inference.cable_fit import law_curves
-    from ..model.zones import ZONED_SUFFIX
+    from ..model.laws.zones import ZONED_SUFFIX
 
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))

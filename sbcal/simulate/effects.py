@@ -19,8 +19,8 @@ from ..model.cable_element import ElementCableModel
 from ..model.cable_time import DEFAULT_STEPS_PER_PERIOD
 from ..model.cable_zones import CableZone
 from ..model.fem import PARAMETER_NAMES
-from ..model.hysteresis import law_for
-from ..model.zones import ZONE_PARAMETERS, ZONED_SUFFIX
+from ..model.laws import LAWS, law_for
+from ..model.laws.zones import ZONE_PARAMETERS, ZONED_SUFFIX
 
 
 EFFECTS = (
@@ -41,12 +41,6 @@ EXTRA_EFFECTS = ("fixture_resonance",)
 
 # --- effect descriptions -----------------------------------------------------------------------
 
-_LAW_SCALE = {"dahl": "chi_dahl", "iwan": "chi_macro", "lognormal_iwan": "chi_median", "bouc_wen": "chi_slip",
-              "iwan5": "chi_macro", "iwan_tail": "chi_tail"}
-_LAW_DEFAULTS = {"dahl": {}, "iwan": {"micro_exponent": -0.5, "macro_ratio": 0.0},
-                 "lognormal_iwan": {"log_spread": 1.5}, "bouc_wen": {"sharpness": 1.0},
-                 "iwan5": {"chi_micro": 1e-6, "density_exponent": -0.5, "macro_ratio": 0.0},
-                 "iwan_tail": {"chi_micro": 1e-6, "density_exponent": -0.5, "tail_exponent": -1.5}}
 _ZONE_RATIOS = ("EJ_min_ratio", "delta_EJ_ratio", "chi_ratio")
 BENCH_ELEMENTS = 12
 """Hermite elements per arm of the bench's cable (richer than the fit's :data:`sbcal.model.cable_element.DEFAULT_N_ELEMENTS`)."""
@@ -76,7 +70,7 @@ def _family(law: str) -> str:
 
 @dataclass(frozen=True)
 class SlipLaw:
-    """The bench cable's strand slip: a hysteresis law of :mod:`sbcal.model.hysteresis` along both arms.
+    """The bench cable's strand slip: a hysteresis law of :mod:`sbcal.model.laws` along both arms.
 
     The cable is :class:`sbcal.model.cable_element.ElementCableModel` with ``elements`` Hermite elements per arm,
     each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``; ``EJ_min`` is the bench's ``EJ``
@@ -92,7 +86,7 @@ class SlipLaw:
     A zoned cable (``docs/virtual_bench.md``, "Zoned cables"): ``zones``, boundary zones at the clamp
     and/or the mass with laws of their own (:class:`sbcal.model.cable_zones.CableZone`, any family,
     fixed values), or ``law`` a fitted model's zoned family (``"iwan5_zoned"``: the family's scaled
-    versions in zones of :class:`sbcal.model.zones.ZonedLaw`, its parameters in ``params``).
+    versions in zones of :class:`sbcal.model.laws.zones.ZonedLaw`, its parameters in ``params``).
 
     Attributes
     ----------
@@ -102,12 +96,11 @@ class SlipLaw:
         any of these with ``_zoned`` (its zone parameters in ``params``: ``clamp_zone`` and
         ``mass_zone`` required, the ratios default 1).
     params : tuple of (str, float)
-        The law's parameters (:attr:`sbcal.model.hysteresis.HysteresisLaw.parameters`); ``delta_EJ``
-        defaults to ``ej_static - EJ`` (the stuck cable is the damper's static rigidity), and
-        ``micro_exponent = -0.5``, ``macro_ratio = 0`` (iwan), ``log_spread = 1.5`` (lognormal_iwan),
-        ``sharpness = 1`` (bouc_wen), ``chi_micro = 1e-6``, ``density_exponent = -0.5``, ``macro_ratio = 0``
-        (iwan5; iwan_tail the same with ``tail_exponent = -1.5`` in place of ``macro_ratio``). The law's curvature scale
-        (``chi_dahl``, ``chi_macro``, ``chi_median``, ``chi_slip``, ``chi_tail``) is required.
+        The law's parameters (:attr:`sbcal.model.laws.HysteresisLaw.parameters`); ``delta_EJ``
+        defaults to ``ej_static - EJ`` (the stuck cable is the damper's static rigidity), the shape
+        parameters to the law's :attr:`~sbcal.model.laws.HysteresisLaw.typical` values (e.g. ``sharpness = 1``
+        for bouc_wen, ``log_spread = 1.5`` for lognormal_iwan). The law's curvature scale
+        (:attr:`~sbcal.model.laws.HysteresisLaw.scale`: ``chi_slip``, ``chi_macro``, ...) is required.
     elements : int
         Hermite elements per arm (default :data:`BENCH_ELEMENTS`; a zoned cable's in all its zones, at
         least 2 per zone).
@@ -131,11 +124,11 @@ class SlipLaw:
 
     def __post_init__(self):
         family = _family(str(self.law))
-        if family not in _LAW_SCALE:
-            raise InputError(f"strand_slip: unknown law {self.law!r}; known: {', '.join(_LAW_SCALE)} "
+        if family not in LAWS:
+            raise InputError(f"strand_slip: unknown law {self.law!r}; known: {', '.join(LAWS)} "
                              f"(each also with {ZONED_SUFFIX})")
         zoned = family != self.law
-        defaults = dict(_LAW_DEFAULTS[family])
+        defaults = dict(LAWS[family].typical)
         if zoned:
             defaults.update({p.name: 1.0 for p in ZONE_PARAMETERS if p.name.endswith("_ratio")})
         params = dict(defaults, **dict(self.params))
@@ -144,7 +137,7 @@ class SlipLaw:
         if unknown:
             raise InputError(f"strand_slip: {unknown[0]} is not a parameter of the {self.law} law; "
                              f"known: {', '.join(model.parameter_names)}")
-        required = [_LAW_SCALE[family]] + (["clamp_zone", "mass_zone"] if zoned else [])
+        required = [LAWS[family].scale] + (["clamp_zone", "mass_zone"] if zoned else [])
         for name in required:
             if name not in params:
                 raise InputError(f"strand_slip: {name} is required")
@@ -200,15 +193,15 @@ class SlipLaw:
             raise InputError(f"strand_slip: zones must be CableZone values, got {zone!r}")
         if zone.law is None or zone.law == self.law:
             return zone
-        if zone.law not in _LAW_SCALE:
-            raise InputError(f"strand_slip: {zone.where} zone: unknown law {zone.law!r}; known: {', '.join(_LAW_SCALE)}")
-        params = dict(_LAW_DEFAULTS[zone.law], **dict(zone.params))
+        if zone.law not in LAWS:
+            raise InputError(f"strand_slip: {zone.where} zone: unknown law {zone.law!r}; known: {', '.join(LAWS)}")
+        params = dict(LAWS[zone.law].typical, **dict(zone.params))
         return replace(zone, params=tuple(params.items()))
 
     @property
     def scale_name(self) -> str:
         """The law's curvature scale parameter (scaled by the re-clamping scatter ``chi0_scatter``)."""
-        return _LAW_SCALE[_family(self.law)]
+        return LAWS[_family(self.law)].scale
 
     def law_params(self, ej_min, ej_static: float) -> dict:
         """The law's parameters for given ``EJ_min``, with ``delta_EJ`` defaulting to ``ej_static - EJ_min``."""
@@ -317,7 +310,7 @@ def _parse_slip(spec: str, value: str) -> SlipLaw:
     ``time:0|1`` and ``steps_per_period:N``."""
     try:
         if ":" not in value:
-            return SlipLaw(params=((_LAW_SCALE[SlipLaw.law], finite_number(value, f"effect {spec!r}")),))
+            return SlipLaw(params=((LAWS[SlipLaw.law].scale, finite_number(value, f"effect {spec!r}")),))
         law, elements, params, zones = SlipLaw.law, BENCH_ELEMENTS, {}, []
         time_domain, steps = False, DEFAULT_STEPS_PER_PERIOD
         for item in value.split(","):
@@ -392,7 +385,7 @@ def check_effects(effects: dict) -> dict:
             raise InputError(f"unknown effect {name!r}; known: {', '.join(EFFECTS + EXTRA_EFFECTS)}")
         if name == "strand_slip":
             if not isinstance(value, SlipLaw):
-                value = SlipLaw(params=((_LAW_SCALE[SlipLaw.law], float(value)),))
+                value = SlipLaw(params=((LAWS[SlipLaw.law].scale, float(value)),))
         elif name in _KEYED:
             cls, first, _ = _KEYED[name]
             if not isinstance(value, cls):

@@ -28,7 +28,7 @@ measurement noise largest at 4-15 Hz, occasional outlier runs, and the thesis's 
 
 Strand slip (:class:`SlipLaw`): the cable is the distributed model of :mod:`sbcal.model.cable` (each arm
 split into Hermite elements, each with ``EJ*_e = EJ_min (1 + i beta_material) + EJ_slip*(chi_e)``
-from a hysteresis law of :mod:`sbcal.model.hysteresis`: by default the bench's own lognormal Iwan law,
+from a hysteresis law of :mod:`sbcal.model.laws`: by default the bench's own lognormal Iwan law,
 outside both fitted families), driven at ``X0 = amplitude_mm_pp / 2 * 1e-3`` m and followed up the
 frequency grid as a stepped-sine controller does (``docs/virtual_bench.md``, ``docs/cable.md``).
 With ``time_domain`` (``strand_slip=...,time:1``) the cable is instead the fast model
@@ -54,7 +54,7 @@ from ..model.cable_time import time_response
 from ..model.cable_zones import CableZone
 from ..model.damper import Damper
 from ..model.fem import STANDARD_GRID_HZ, arm_impedance
-from ..model.hysteresis import law_for
+from ..model.laws import law_for
 from .effects import (BENCH_ELEMENTS, BENCH_HARMONICS, BENCH_SECTIONS, BENCH_ZONE_SECTIONS, EFFECTS, EXTRA_EFFECTS,
                       TIME_REFUSED, FixtureResonance, SlipLaw, check_effects, check_params, parse_effect)
 

@@ -1,13 +1,13 @@
 """The laws' periodic operators compiled (numba): the per-sample loops of
-:meth:`sbcal.model.law_base.HysteresisLaw.periodic_moment`.
+:meth:`sbcal.model.laws.base.HysteresisLaw.periodic_moment`.
 
 - **Bouc-Wen** (and Dahl, ``n = 1``): :func:`bw_periodic` runs, per curvature path, the whole
   evaluation in one fused loop: the turning state of the outer loop (the start), Newton on the period
   map (each sweep steps the state sample by sample along the arc), and the final sweep with the
   derivatives carried forward and the periodic state's own motion added. The arc ``A(eta)`` is Gauss's
   hypergeometric function (scipy's own ``hyp2f1``, called through its Cython export: the same values
-  as ``scipy.special.hyp2f1``), its logarithmic end taken apart as in :func:`sbcal.model.bouc_wen._bw_arc`;
-  the inverse arc is the per-exponent cubic Hermite table (:func:`sbcal.model.bouc_wen._bw_inverse_table`),
+  as ``scipy.special.hyp2f1``), its logarithmic end taken apart as in :func:`sbcal.model.laws.bouc_wen._bw_arc`;
+  the inverse arc is the per-exponent cubic Hermite table (:func:`sbcal.model.laws.bouc_wen._bw_inverse_table`),
   or Newton on the arc where the exponents are too many for tables.
 - **Masing laws** (the Iwan laws): the memory of reversal points is a per-sample loop over a stack
   (:func:`masing_reversals`) that depends on the curvature path only; the backbone is then evaluated
@@ -73,8 +73,8 @@ def _hyp2f1(typingctx, a, b, c, x):
     return sig, codegen
 
 
-_BW_NEAR = 0.9  # as sbcal.model.bouc_wen._BW_NEAR
-_END_X, _END_W = np.polynomial.legendre.leggauss(20)  # as sbcal.model.bouc_wen._BW_END_NODES
+_BW_NEAR = 0.9  # as sbcal.model.laws.bouc_wen._BW_NEAR
+_END_X, _END_W = np.polynomial.legendre.leggauss(20)  # as sbcal.model.laws.bouc_wen._BW_END_NODES
 _ONE_BELOW = 1.0 - 2.0**-53
 _EULER = float(np.euler_gamma)
 _U_TOP = 40.0  # -ln(1 - eta) beyond the doubles below 1
@@ -86,7 +86,7 @@ _PERIOD_TOL = 1e-13
 
 @njit(cache=True)
 def _arc(eta, n, sign, psi):
-    """``int_0^eta dz / (1 + sign z^n)`` (:func:`sbcal.model.bouc_wen._bw_arc`), scalar; ``psi`` is
+    """``int_0^eta dz / (1 + sign z^n)`` (:func:`sbcal.model.laws.bouc_wen._bw_arc`), scalar; ``psi`` is
     ``digamma(1 / n)`` (in the logarithmic end's constant)."""
     eta = min(eta, _ONE_BELOW)
     y = eta**n
@@ -105,7 +105,7 @@ def _arc(eta, n, sign, psi):
 
 @njit(cache=True)
 def _signed_arc(eta, n, psi):
-    """Arc from 0 to ``eta`` in either sign while unloading (:func:`sbcal.model.bouc_wen._bw_signed_arc`)."""
+    """Arc from 0 to ``eta`` in either sign while unloading (:func:`sbcal.model.laws.bouc_wen._bw_signed_arc`)."""
     if eta >= 0:
         return _arc(abs(eta), n, 1.0, psi)
     return -_arc(abs(eta), n, -1.0, psi)
@@ -113,7 +113,7 @@ def _signed_arc(eta, n, psi):
 
 @njit(cache=True)
 def _arc_inverse(y, n, sign, psi):
-    """``eta`` with ``_arc(eta, n, sign) = y >= 0`` (:func:`sbcal.model.bouc_wen._bw_arc_inverse`)."""
+    """``eta`` with ``_arc(eta, n, sign) = y >= 0`` (:func:`sbcal.model.laws.bouc_wen._bw_arc_inverse`)."""
     lo, hi = 0.0, (1.0 if sign > 0 else 60.0)
     x = min(y, 0.5 * hi) if sign > 0 else math.log1p(y)
     for _ in range(100):
@@ -143,7 +143,7 @@ def _arc_inverse(y, n, sign, psi):
 @njit(cache=True)
 def _inverse(v, n, psi, table, yk, ek, dk, hint):
     """``eta`` with ``_signed_arc(eta) = v``: the cubic Hermite table ``table`` (row of ``yk``, ``ek``,
-    ``dk``; :func:`sbcal.model.bouc_wen._bw_table_inverse`), or Newton on the arc where ``table < 0``.
+    ``dk``; :func:`sbcal.model.laws.bouc_wen._bw_table_inverse`), or Newton on the arc where ``table < 0``.
 
     The node is found from ``hint`` (the last one found: a path's next sample lies a few nodes
     away) by galloping, then bisection: ``np.searchsorted``'s (left) answer. Returns ``eta`` and the hint.
@@ -206,7 +206,7 @@ def _slope(e, n):
 
 @njit(cache=True)
 def _turning(a, n, psi):
-    """``eta_a`` with ``A+(eta_a) + A-(eta_a) = 2 a`` (:func:`sbcal.model.bouc_wen._bw_turning`).
+    """``eta_a`` with ``A+(eta_a) + A-(eta_a) = 2 a`` (:func:`sbcal.model.laws.bouc_wen._bw_turning`).
 
     Bisection-safeguarded Newton in ``u = -ln(1 - eta_a)``, where the sum grows like ``u / n`` towards
     saturation (in ``eta_a`` Newton overshoots there and the bisection takes ~50 steps); 1 where the
@@ -241,7 +241,7 @@ def _turning(a, n, psi):
 @njit(cache=True)
 def bw_turning(a, n, psi):
     """``eta_a`` of the steady loops at amplitudes ``a`` (in units of ``chi_slip``), exponents ``n`` and
-    ``psi = digamma(1 / n)``, 1-D arrays alike (:func:`sbcal.model.bouc_wen._bw_turning`)."""
+    ``psi = digamma(1 / n)``, 1-D arrays alike (:func:`sbcal.model.laws.bouc_wen._bw_turning`)."""
     out = np.empty(a.size)
     for i in range(a.size):
         out[i] = _turning(a[i], n[i], psi[i])
@@ -277,7 +277,7 @@ def bw_periodic(chi, dirs, chi_slip, n, psi, table, yk, ek, dk):
     ``chi_slip``, ``n``, ``psi`` (``digamma(1 / n)``) and ``table`` (the row of the inverse
     tables ``yk``, ``ek``, ``dk`` (T, N); -1: Newton on the arc) per row. Returns ``eta`` (m, n_t) and
     its derivatives (m, n_t, k); the moment is ``delta_EJ chi_slip eta``. The method is
-    :func:`sbcal.model.bouc_wen._bw_periodic`'s: the state stepped exactly along the arc between samples
+    :func:`sbcal.model.laws.bouc_wen._bw_periodic`'s: the state stepped exactly along the arc between samples
     (its arc coordinate kept in the current direction, converted where the direction turns), the
     periodic state by Newton on the period map from the outer loop's turning state, and the
     derivatives carried forward at a fixed start, then the fixed point's own motion added.

@@ -9,8 +9,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..core.errors import InputError
-from . import law_kernels
+from ...core.errors import InputError
+from . import kernels
 
 
 __all__ = ["LawParameter", "DELTA_EJ", "HysteresisLaw", "jenkins_rigidity", "masing_loop"]
@@ -21,7 +21,10 @@ class LawParameter:
     """Name, SI unit, meaning and domain of one law parameter.
 
     The domain is the interval from ``low`` to ``high``, open at an end unless ``include_low`` or
-    ``include_high`` closes it; the default ``(0, inf)`` is that of a scale.
+    ``include_high`` closes it; the default ``(0, inf)`` is that of a scale. ``prior`` is the box a
+    calibration samples it in, ``(dist, lower, upper)`` with ``dist`` ``"uniform"`` or ``"loguniform"``
+    (``"of_ej_static"`` as a fourth item: the bounds are fractions of the damper's static rigidity);
+    ``priors/cable.toml`` may override it.
     """
 
     name: str
@@ -32,6 +35,7 @@ class LawParameter:
     high: float = math.inf
     include_low: bool = False
     include_high: bool = False
+    prior: tuple = ()
 
     def contains(self, v: np.ndarray) -> np.ndarray:
         """Boolean mask: the values ``v`` lie in the domain."""
@@ -40,7 +44,9 @@ class LawParameter:
         return above & below
 
 
-DELTA_EJ = LawParameter("delta_EJ", "N m^2", "rigidity the slip part adds while the wires stick (EJ_max - EJ_min)")
+# EJ_min + delta_EJ <= EJ_static: the stuck cable is at most the static rigidity (the thesis's Table 4.2)
+DELTA_EJ = LawParameter("delta_EJ", "N m^2", "rigidity the slip part adds while the wires stick (EJ_max - EJ_min)",
+                        prior=("loguniform", 0.02, 1.0, "of_ej_static"))
 
 
 def jenkins_rigidity(x):
@@ -71,9 +77,12 @@ def jenkins_rigidity(x):
 class HysteresisLaw:
     """Base of the strand-slip law families.
 
-    Subclasses set :attr:`name` and :attr:`parameters` (each with its domain), :attr:`ordered` where
-    parameters bound one another, and implement :meth:`_rigidity` (the describing function on
-    validated, broadcast arrays) and :meth:`steady_loop`.
+    Subclasses set :attr:`name` and :attr:`parameters` (each with its domain and prior box),
+    :attr:`ordered` where parameters bound one another, :attr:`scale` and :attr:`typical` (what the
+    virtual bench needs), and implement :meth:`_rigidity` (the describing function on validated,
+    broadcast arrays) and :meth:`steady_loop`, and a :attr:`backbone` (a Masing law) or their own
+    :meth:`_branch`, :meth:`_periodic` and :meth:`time_stepper`; then :func:`sbcal.model.laws.register`
+    makes the law known to every command.
     """
 
     name: ClassVar[str] = ""
@@ -82,6 +91,17 @@ class HysteresisLaw:
     """Pairs ``(lower, upper)`` of parameter names: the domain also needs ``lower < upper``."""
     min_tests: ClassVar[int] = 1
     """Tests (amplitudes) a cable state needs before the family is compared on it."""
+    fitted: ClassVar[bool] = False
+    """A family ``sbcal cable`` fits and compares (every parameter then needs a prior box)."""
+    within: ClassVar[str] = ""
+    """The fitted family that holds this law as a special case (``dahl`` in ``bouc_wen``): its alias."""
+    summary: ClassVar[str] = ""
+    """One line for ``sbcal cable --law``'s help."""
+    scale: ClassVar[str] = ""
+    """The parameter that sets the curvature where the wires slip [1/m] (the virtual bench's ``strand_slip`` value)."""
+    typical: ClassVar[dict] = {}
+    """Values of the shape parameters (all but ``delta_EJ`` and :attr:`scale`) the virtual bench takes
+    when only the scale is given."""
 
     @property
     def parameter_names(self) -> tuple:
@@ -211,6 +231,26 @@ class HysteresisLaw:
             raise NotImplementedError(f"{self.name}: no periodic evaluation")
         return _masing_periodic(lambda x: backbone(x, **p), chi, dirs)
 
+    def time_stepper(self, params: dict, *, resolution: float = 1.0, linear=None):
+        """The law's own hysteresis operator stepped in time, for the time-domain cable; None (the default):
+        a Masing law, whose backbone gives it (a Jenkins population,
+        :func:`sbcal.model.laws.steppers.law_stepper`, which validates ``params`` and calls this).
+
+        Parameters
+        ----------
+        params : dict
+            The law's parameters, each an ndarray of shape (n_sections,), inside the law's domain.
+        resolution : float
+            Cell density of a Jenkins population.
+        linear : complex or ndarray of complex, optional
+            The sections' ``EJ_min (1 + i beta)`` [N m^2] (Jenkins populations only).
+
+        Returns
+        -------
+        A stepper (``start``, ``trial``, ``commit``; :mod:`sbcal.model.laws.steppers`) or None.
+        """
+        return None
+
     def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:  # pragma: no cover - abstract
         """Slip moment [N m] on the steady loop ``chi = chi_a cos(theta)``, theta in [0, 2 pi).
 
@@ -260,9 +300,9 @@ def _masing_periodic(backbone, chi, dirs):
     (odd ``B``) from the last reversal ``r``; once the curvature passes the reversal before it, the
     inner loop has closed and both points are dropped (Madelung's rule: the path rejoins the branch it
     left). Derivatives ride along: ``dM = dM_r + B'(u) (d chi - d chi_r)`` (``B'`` by a forward
-    difference). The stack depends on the path only (compiled: :func:`sbcal.model.law_kernels.masing_reversals`),
+    difference). The stack depends on the path only (compiled: :func:`sbcal.model.laws.kernels.masing_reversals`),
     so the backbone is evaluated once over all samples, then the recurrence runs compiled
-    (:func:`sbcal.model.law_kernels.masing_accumulate`). ``backbone`` takes and returns (n, any) arrays.
+    (:func:`sbcal.model.laws.kernels.masing_accumulate`). ``backbone`` takes and returns (n, any) arrays.
     """
     n, nt = chi.shape
     rows = np.arange(n)
@@ -273,7 +313,7 @@ def _masing_periodic(backbone, chi, dirs):
     dpath = np.ascontiguousarray(dirs[rows[:, None], order], dtype=float)
     top, bottom = path[:, 0], chi[rows, low]
     h = (1e-7 * (top - bottom) + 1e-300)[:, None]
-    ref = law_kernels.masing_reversals(np.ascontiguousarray(path, dtype=float))
+    ref = kernels.masing_reversals(np.ascontiguousarray(path, dtype=float))
     # each sample's distance from its reversal (column 0: the outer loop's half range)
     kr = np.where(ref >= 0, np.take_along_axis(path, np.maximum(ref, 0), axis=1), bottom[:, None])
     u = 0.5 * (path - kr)
@@ -286,5 +326,5 @@ def _masing_periodic(backbone, chi, dirs):
     # the outer loop of an odd periodic curvature: M(top) = B(half range)
     m_top = b0[:, 0]
     dm_top = slope[:, 0][:, None] * 0.5 * (dpath[:, 0] - dirs[rows, low])
-    return law_kernels.masing_accumulate(ref, order, branch, slope, m_top, np.ascontiguousarray(dm_top),
+    return kernels.masing_accumulate(ref, order, branch, slope, m_top, np.ascontiguousarray(dm_top),
                                          dpath, np.ascontiguousarray(dirs[rows, low], dtype=float))

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .law_base import HysteresisLaw, LawParameter
+from .base import HysteresisLaw, LawParameter
 
 
 __all__ = ["ZONED_SUFFIX", "ZONE_PARAMETERS", "ZONES", "ZonedLaw"]

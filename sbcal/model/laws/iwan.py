@@ -12,18 +12,25 @@ import numpy as np
 from scipy import special
 from scipy.interpolate import CubicSpline
 
-from ..core.errors import InputError
-from .law_base import DELTA_EJ, HysteresisLaw, LawParameter, jenkins_rigidity, masing_loop
+from ...core.errors import InputError
+from .base import DELTA_EJ, HysteresisLaw, LawParameter, jenkins_rigidity, masing_loop
+from .registry import register
 
 
 __all__ = ["IwanLaw", "Iwan5Law", "IwanTailLaw", "LognormalIwanLaw"]
 
-_CHI_MACRO = LawParameter("chi_macro", "1/m", "curvature amplitude at which every wire slips (macro-slip)")
+# The slip curvatures' boxes, log-uniform: each is known to an order of magnitude. Bench curvatures span ~1e-4
+# (0.1 mm, off resonance) to ~0.1 (2 mm at a resonance): macro-slip a decade beyond each end
+_CHI_MACRO = LawParameter("chi_macro", "1/m", "curvature amplitude at which every wire slips (macro-slip)",
+                          prior=("loguniform", 1e-5, 1.0))
+# Segalman's beta: 0 is a smooth entry into macro-slip; large values put most wires at one slip curvature
+# (a sharp knee, folds at low damping)
 _MACRO_RATIO = LawParameter("macro_ratio", "1", ">= 0: wires slipping only at chi_macro, relative to the spread part",
-                            include_low=True)
+                            include_low=True, prior=("uniform", 0.0, 5.0))
 
 # --- Iwan (Segalman's four parameters) ----------------------------------------------------------
 
+@register
 @dataclass(frozen=True)
 class IwanLaw(HysteresisLaw):
     """Segalman's four-parameter Iwan law (J. Appl. Mech. 72:752, 2005) on curvature.
@@ -58,6 +65,9 @@ class IwanLaw(HysteresisLaw):
                      low=-1.0),
         _MACRO_RATIO,
     )
+    within: ClassVar[str] = "iwan5"
+    scale: ClassVar[str] = "chi_macro"
+    typical: ClassVar[dict] = {"micro_exponent": -0.5, "macro_ratio": 0.0}
 
     def _rigidity(self, chi, *, delta_EJ, chi_macro, micro_exponent, macro_ratio):
         c = micro_exponent
@@ -139,11 +149,17 @@ def _slip_integral(x1, x2, p):
     return primitive(x2) - primitive(x1) + 1j * im
 
 
-_CHI_MICRO = LawParameter("chi_micro", "1/m", "curvature amplitude below which every wire sticks (the lower cut-off)")
+# from far below any bench curvature (Segalman's Iwan-4, no cut-off) to the bench's middle; < the upper cut-off
+_CHI_MICRO = LawParameter("chi_micro", "1/m", "curvature amplitude below which every wire sticks (the lower cut-off)",
+                          prior=("loguniform", 1e-7, 0.1))
+# -1 spreads the wires evenly over the decades between the cut-offs; lap joints measure -0.5..0 (Segalman);
+# below -2 the wires at chi_micro dominate (Coulomb-like W ~ chi), above 2 those at the upper end
 _DENSITY_EXPONENT = LawParameter("density_exponent", "1", "c > -5/2: slip-curvature density ~ phi^c above chi_micro",
-                                 low=-2.5)
+                                 low=-2.5, prior=("uniform", -2.4, 2.0))
+_TYPICAL_DENSITY = {"chi_micro": 1e-6, "density_exponent": -0.5}
 
 
+@register
 @dataclass(frozen=True)
 class Iwan5Law(HysteresisLaw):
     """Five-parameter Iwan law: a power-law slip-curvature density between two cut-offs, plus a point mass.
@@ -172,6 +188,10 @@ class Iwan5Law(HysteresisLaw):
     name: ClassVar[str] = "iwan5"
     parameters: ClassVar[tuple] = (DELTA_EJ, _CHI_MICRO, _CHI_MACRO, _DENSITY_EXPONENT, _MACRO_RATIO)
     ordered: ClassVar[tuple] = (("chi_micro", "chi_macro"),)
+    fitted: ClassVar[bool] = True
+    summary: ClassVar[str] = "Iwan with two cut-offs, Segalman's 4-parameter law as a limit"
+    scale: ClassVar[str] = "chi_macro"
+    typical: ClassVar[dict] = dict(_TYPICAL_DENSITY, macro_ratio=0.0)
 
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
         shape = np.broadcast_shapes(np.shape(chi), np.shape(delta_EJ), np.shape(chi_micro), np.shape(chi_macro),
@@ -204,6 +224,7 @@ class Iwan5Law(HysteresisLaw):
 
 # --- Iwan with a power-law tail beyond the macro-slip curvature -----------------------------------
 
+@register
 @dataclass(frozen=True)
 class IwanTailLaw(HysteresisLaw):
     """Iwan law whose slip-curvature density is a broken power law: ``phi^c`` between the cut-offs,
@@ -234,11 +255,18 @@ class IwanTailLaw(HysteresisLaw):
     parameters: ClassVar[tuple] = (
         DELTA_EJ,
         _CHI_MICRO,
-        LawParameter("chi_tail", "1/m", "curvature where the slip-curvature density's power changes to the tail's"),
+        LawParameter("chi_tail", "1/m", "curvature where the slip-curvature density's power changes to the tail's",
+                     prior=_CHI_MACRO.prior),
         _DENSITY_EXPONENT,
-        LawParameter("tail_exponent", "1", "-5/2 < c_t < -1: density ~ phi^c_t beyond chi_tail", low=-2.5, high=-1.0),
+        # short of the domain's ends: at -1 the tail's wires would hold infinite rigidity
+        LawParameter("tail_exponent", "1", "-5/2 < c_t < -1: density ~ phi^c_t beyond chi_tail", low=-2.5, high=-1.0,
+                     prior=("uniform", -2.45, -1.05)),
     )
     ordered: ClassVar[tuple] = (("chi_micro", "chi_tail"),)
+    fitted: ClassVar[bool] = True
+    summary: ClassVar[str] = "Iwan whose density ends in a power-law tail"
+    scale: ClassVar[str] = "chi_tail"
+    typical: ClassVar[dict] = dict(_TYPICAL_DENSITY, tail_exponent=-1.5)
 
     @staticmethod
     def _scale(delta_EJ, chi_micro, chi_tail, density_exponent, tail_exponent):
@@ -310,6 +338,7 @@ def _lognormal_table(log_spread: float):
     return CubicSpline(v, table.real), CubicSpline(v, table.imag), v_lo, v_hi
 
 
+@register
 @dataclass(frozen=True)
 class LognormalIwanLaw(HysteresisLaw):
     """Iwan law with a lognormal slip-threshold density: the virtual bench's cable, fitted by neither family.
@@ -333,6 +362,8 @@ class LognormalIwanLaw(HysteresisLaw):
         LawParameter("chi_median", "1/m", "median slip curvature of the wires"),
         LawParameter("log_spread", "1", "log standard deviation of the slip curvatures (scalar)"),
     )
+    scale: ClassVar[str] = "chi_median"
+    typical: ClassVar[dict] = {"log_spread": 1.5}
 
     def _rigidity(self, chi, *, delta_EJ, chi_median, log_spread):
         spreads = np.unique(log_spread)

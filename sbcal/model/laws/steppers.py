@@ -38,10 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.errors import InputError
-from .bouc_wen import BoucWenLaw, DahlLaw
-from .hysteresis import HysteresisLaw
-from .law_base import jenkins_rigidity
+from ...core.errors import InputError
+from .base import HysteresisLaw, jenkins_rigidity
 
 
 __all__ = ["LawState", "Trial", "NoSlip", "JenkinsPopulation", "DahlStepper", "BoucWenStepper",
@@ -54,6 +52,7 @@ _TAIL_WIDTH = 0.5  # largest cell width in ln(phi) where the density is thin
 _LOSS = 0.1  # as _BULK, against the section's whole rigidity's real and imaginary parts (``linear``)
 _BULK = 0.055  # cells per unit ln(phi) grow as sqrt(dF/d ln phi) / _BULK (F: fraction of the stuck rigidity)
 _FD = 1e-5  # relative step of the backbone's one-sided second-order differences
+_ROUNDING = 1e-9  # a slipping share this close to 0 or 1 is the backbone's differences' rounding
 _NEAR_BREAK = 1e-3  # a cell edge this close (relative) to a breakpoint is dropped: the breakpoint is the edge
 _THIN = 1e-9  # dF/d ln(phi) below this (relative) is no density: no cells there (outside a compact support)
 
@@ -231,8 +230,9 @@ def jenkins_population(law: HysteresisLaw, *, resolution: float = 1.0, linear: c
     if breaks.size:
         near = np.min(np.abs(np.log(edges[:, None] / breaks[None, :])), axis=1) < _NEAR_BREAK
         edges = np.union1d(edges[~near | (edges == lo) | (edges == hi)], breaks)
-    # trim the ends where nothing slips (below a lower cut-off, above a compact support)
-    live = np.flatnonzero((frac > 0.0) & (frac < 1.0))
+    # trim the ends where nothing slips (below a lower cut-off, above a compact support); the backbone's
+    # differences leave ~1e-11 of rounding where the share is 0 or 1 (a law that is one point mass)
+    live = np.flatnonzero((frac > _ROUNDING) & (frac < 1.0 - _ROUNDING))
     if live.size:
         first, last = grid[max(live[0] - 1, 0)], grid[min(live[-1] + 1, grid.size - 1)]
         edges = np.union1d(edges[(edges >= first) & (edges <= last)], [first, last])
@@ -330,7 +330,7 @@ class JenkinsPopulation:
 
     def describing_function(self, chi_a) -> np.ndarray:
         """The population's exact first harmonic ``sum_e k_e J(phi_e / chi_a) + k_el`` [N m^2] on its
-        steady loop (:func:`sbcal.model.law_base.jenkins_rigidity`), shape (n_sections, n_amplitudes)."""
+        steady loop (:func:`sbcal.model.laws.base.jenkins_rigidity`), shape (n_sections, n_amplitudes)."""
         chi = np.atleast_1d(np.asarray(chi_a, dtype=float))
         x = self.slip[:, :, None] / chi[None, None, :]
         return np.einsum("se,sea->sa", self.stiffness, jenkins_rigidity(np.where(np.isfinite(x), x, 2.0))) \
@@ -571,7 +571,7 @@ def law_stepper(law: HysteresisLaw | None, params: dict, *, size: int | None = N
     Parameters
     ----------
     law : HysteresisLaw or None
-        A law of :mod:`sbcal.model.hysteresis` (not zoned: a zoned law's sections carry their zone's
+        A law of :mod:`sbcal.model.laws` (not zoned: a zoned law's sections carry their zone's
         parameters of its ``base``); None: no slip part.
     params : dict
         The law's parameters, each a scalar or shape (n_sections,).
@@ -604,13 +604,12 @@ def law_stepper(law: HysteresisLaw | None, params: dict, *, size: int | None = N
         p[k] = np.ascontiguousarray(np.broadcast_to(v, (n,)))
     if not np.all(law.valid(**p)):
         raise InputError(f"{law.name} law: parameters outside the law's domain")
+    own = law.time_stepper(p, resolution=resolution, linear=linear)
+    if own is not None:
+        return own
     if hasattr(law, "backbone"):
         return JenkinsPopulation.from_law(law, p, resolution=resolution, linear=linear)
-    if isinstance(law, DahlLaw):
-        return DahlStepper(*_sections(p["delta_EJ"], p["chi_dahl"]))
-    if isinstance(law, BoucWenLaw):
-        return BoucWenStepper.from_params(p["delta_EJ"], p["chi_slip"], p["sharpness"])
-    raise InputError(f"{law.name} law: no time stepper (a Masing law with a backbone, dahl or bouc_wen)")
+    raise InputError(f"{law.name} law: no time stepper (a Masing law with a backbone, or its own time_stepper)")
 
 
 def drive(stepper, kappa) -> np.ndarray:

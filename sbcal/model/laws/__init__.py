@@ -13,8 +13,9 @@ time convention ``exp(+i omega t)``, a positive imaginary part dissipates: the e
 unit length is ``W = pi Im(EJ_slip*) chi_a^2`` [J/m]. The cable's total rigidity is
 ``EJ*(chi_a) = EJ_min (1 + i beta_material) + EJ_slip*(chi_a)``.
 
-Each family is a small frozen class (:class:`HysteresisLaw` and one subclass each, as emcee's moves
-are organised) with its parameters' names and units, a vectorised exact describing function
+Each family is a small frozen class in a module of its own (:class:`HysteresisLaw` and one subclass
+each, as emcee's moves are organised), registered by name in :mod:`~sbcal.model.laws.registry`, with
+its parameters' names, units, domains and prior boxes, a vectorised exact describing function
 :meth:`HysteresisLaw.slip_rigidity`, and the law's own steady loop :meth:`HysteresisLaw.steady_loop`
 (the reference the describing functions are tested against):
 
@@ -33,7 +34,7 @@ law                 parameters                                  describing funct
                     ``log_spread`` [1]                          ``log_spread`` (virtual bench only)
 ==================  ==========================================  ==================================
 
-The fitted families (:data:`FITTED_LAWS`) are ``bouc_wen`` (Dahl's law with a free sharpness:
+The fitted families (:func:`fitted_laws`) are ``bouc_wen`` (Dahl's law with a free sharpness:
 ``sharpness = 1`` is ``dahl``) and ``iwan5`` (an Iwan law whose slip curvatures spread between two
 cut-offs: ``chi_micro -> 0`` is ``iwan``); ``dahl`` and ``iwan`` remain as their special cases, and
 ``lognormal_iwan`` is the virtual bench's own law, a special case of neither.
@@ -41,41 +42,23 @@ cut-offs: ``chi_micro -> 0`` is ``iwan``); ``dahl`` and ``iwan`` remain as their
 ``delta_EJ`` is the same thing in every law: the rigidity the slip part adds while the wires stick
 (``EJ_max = EJ_min + delta_EJ``). Parameters outside a law's domain give NaN, not an exception, so a
 sampler can treat them as outside the support.
+
+A new law is a module here with one :func:`register`-decorated class and its name on the import line
+below (``docs/cable.md``, "A law of your own").
 """
 
 from __future__ import annotations
 
-from ..core.errors import InputError
+from . import bouc_wen, iwan  # noqa: F401 - the modules whose laws register themselves; a new law's module joins here
+from .base import HysteresisLaw, LawParameter, jenkins_rigidity
 from .bouc_wen import BoucWenLaw, DahlLaw
 from .iwan import Iwan5Law, IwanLaw, IwanTailLaw, LognormalIwanLaw
-from .law_base import HysteresisLaw, LawParameter, jenkins_rigidity
+from .registry import LAWS, aliases, fitted_laws, law_for, parameter_units, register, zoned
 from .zones import ZONED_SUFFIX, ZonedLaw
 
 
 __all__ = [
     "LawParameter", "HysteresisLaw", "DahlLaw", "BoucWenLaw", "IwanLaw", "Iwan5Law", "IwanTailLaw",
-    "LognormalIwanLaw", "ZonedLaw", "LAWS", "FITTED_LAWS", "law_for", "zoned", "jenkins_rigidity",
+    "LognormalIwanLaw", "ZonedLaw", "ZONED_SUFFIX", "LAWS", "register", "fitted_laws", "aliases", "law_for",
+    "zoned", "parameter_units", "jenkins_rigidity",
 ]
-
-LAWS = {law.name: law for law in (BoucWenLaw, Iwan5Law, IwanTailLaw, DahlLaw, IwanLaw, LognormalIwanLaw)}
-"""Law classes by name."""
-
-FITTED_LAWS = ("bouc_wen", "iwan5", "iwan_tail")
-"""The families a calibration fits and compares (three shapes: a smooth Dahl-like knee, a spread of
-slipping wires ending sharply, one ending in a power-law tail; each only where every cable state has
-its :attr:`HysteresisLaw.min_tests`); ``dahl`` and ``iwan`` are special cases, ``lognormal_iwan`` the
-virtual bench's own."""
-
-
-def law_for(name: str) -> HysteresisLaw:
-    """A law instance by name (:data:`LAWS`, or a family of them with ``_zoned``: its
-    :class:`sbcal.model.zones.ZonedLaw`); one-line InputError for an unknown name."""
-    base = name[:-len(ZONED_SUFFIX)] if name.endswith(ZONED_SUFFIX) else name
-    if base not in LAWS:
-        raise InputError(f"unknown hysteresis law {name!r}; known: {', '.join(LAWS)} (each also with {ZONED_SUFFIX})")
-    return ZonedLaw(LAWS[base]()) if base != name else LAWS[base]()
-
-
-def zoned(name: str) -> str:
-    """The zoned family of the law ``name`` (``iwan5`` -> ``iwan5_zoned``)."""
-    return name if name.endswith(ZONED_SUFFIX) else name + ZONED_SUFFIX

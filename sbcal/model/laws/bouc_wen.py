@@ -14,14 +14,21 @@ from scipy.integrate import solve_ivp
 from scipy.interpolate import RectBivariateSpline
 from scipy.optimize import brentq
 
-from . import law_kernels
-from .law_base import DELTA_EJ, HysteresisLaw, LawParameter
+from . import kernels
+from .base import DELTA_EJ, HysteresisLaw, LawParameter
+from .registry import register
+from .steppers import BoucWenStepper, DahlStepper
 
 
 __all__ = ["DahlLaw", "BoucWenLaw"]
 
 # --- Dahl ---------------------------------------------------------------------------------------
 
+# bench curvatures span ~1e-4 (0.1 mm, off resonance) to ~0.1 (2 mm at a resonance): a decade beyond each end
+_SATURATION_BOX = ("loguniform", 1e-5, 1.0)
+
+
+@register
 @dataclass(frozen=True)
 class DahlLaw(HysteresisLaw):
     """Dahl's law: Bouc-Wen with ``n = 1``, ``beta = 1``, ``gamma = 0`` (slenderpy's Stockbridge masses).
@@ -42,8 +49,14 @@ class DahlLaw(HysteresisLaw):
     name: ClassVar[str] = "dahl"
     parameters: ClassVar[tuple] = (
         DELTA_EJ,
-        LawParameter("chi_dahl", "1/m", "Dahl curvature: the slip moment saturates at delta_EJ chi_dahl"),
+        LawParameter("chi_dahl", "1/m", "Dahl curvature: the slip moment saturates at delta_EJ chi_dahl",
+                     prior=_SATURATION_BOX),
     )
+    within: ClassVar[str] = "bouc_wen"
+    scale: ClassVar[str] = "chi_dahl"
+
+    def time_stepper(self, params, *, resolution=1.0, linear=None):
+        return DahlStepper(params["delta_EJ"], params["chi_dahl"])
 
     def _rigidity(self, chi, *, delta_EJ, chi_dahl):
         a = chi / chi_dahl
@@ -272,10 +285,10 @@ def _bw_branch_eta(x, a, n):
 
 def _bw_turning(a, n):
     """``eta_a`` of the steady loop at amplitude ``a``: ``A+(eta_a) + A-(eta_a) = 2 a`` (:func:`_bw_branch_eta`;
-    bisection-safeguarded Newton in ``-ln(1 - eta_a)``, compiled: :func:`sbcal.model.law_kernels.bw_turning`)."""
+    bisection-safeguarded Newton in ``-ln(1 - eta_a)``, compiled: :func:`sbcal.model.laws.kernels.bw_turning`)."""
     a, n = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(n, dtype=float))
     flat_n = np.ascontiguousarray(n).ravel()
-    eta_a = law_kernels.bw_turning(np.ascontiguousarray(a).ravel(), flat_n, special.digamma(1.0 / flat_n))
+    eta_a = kernels.bw_turning(np.ascontiguousarray(a).ravel(), flat_n, special.digamma(1.0 / flat_n))
     return eta_a.reshape(a.shape)
 
 
@@ -343,7 +356,7 @@ def _bw_periodic(chi, dirs, delta_EJ, chi_slip, n):
     sample is the fixed point of the period map, by Newton from the outer loop's state
     (:func:`_bw_branch_eta`) with the map's exact derivative ``prod A'(eta) / A'(eta')``. Derivatives
     ride along at a fixed start, then the fixed point's own motion is added. Compiled, one fused loop
-    per row (:func:`sbcal.model.law_kernels.bw_periodic`); the inverse arc from the per-exponent tables
+    per row (:func:`sbcal.model.laws.kernels.bw_periodic`); the inverse arc from the per-exponent tables
     (:func:`_bw_signed_inverse`'s choice).
     """
     m, nt = chi.shape
@@ -355,7 +368,7 @@ def _bw_periodic(chi, dirs, delta_EJ, chi_slip, n):
         yk = ek = dk = np.zeros((1, 2))
     else:
         yk, ek, dk = (np.stack(t) for t in zip(*(_bw_inverse_table(float(v)) for v in values)))
-    eta, deta = law_kernels.bw_periodic(np.ascontiguousarray(chi, dtype=float),
+    eta, deta = kernels.bw_periodic(np.ascontiguousarray(chi, dtype=float),
                                         np.ascontiguousarray(dirs, dtype=float), ks, n, special.digamma(1.0 / n),
                                         row.astype(np.int64), yk, ek, dk)
     scale = delta_EJ * chi_slip
@@ -431,6 +444,7 @@ def _bouc_wen_rigidity(a, n):
     return np.where(a > 0, out, 1.0 + 0j)
 
 
+@register
 @dataclass(frozen=True)
 class BoucWenLaw(HysteresisLaw):
     """Bouc-Wen law with ``beta = 1``, ``gamma = 0`` and a free exponent: Dahl's law with a knee of any sharpness.
@@ -459,11 +473,22 @@ class BoucWenLaw(HysteresisLaw):
     name: ClassVar[str] = "bouc_wen"
     parameters: ClassVar[tuple] = (
         DELTA_EJ,
-        LawParameter("chi_slip", "1/m", "Bouc-Wen curvature: the slip moment saturates at delta_EJ chi_slip"),
+        LawParameter("chi_slip", "1/m", "Bouc-Wen curvature: the slip moment saturates at delta_EJ chi_slip",
+                     prior=_SATURATION_BOX),
+        # the whole domain (the table's), log-uniform: micro-slip W ~ chi^(n+2) from chi^2.3 (a broad knee)
+        # to chi^7 (nearly one Jenkins element); 1 is Dahl
         LawParameter("sharpness", "1", f"Bouc-Wen exponent n in [{_BW_SHARPNESS[0]}, {_BW_SHARPNESS[1]}]: "
                      "sharpness of the stick-slip knee; micro-slip W ~ chi_a^(n+2)",
-                     low=_BW_SHARPNESS[0], high=_BW_SHARPNESS[1], include_low=True, include_high=True),
+                     low=_BW_SHARPNESS[0], high=_BW_SHARPNESS[1], include_low=True, include_high=True,
+                     prior=("loguniform", *_BW_SHARPNESS)),
     )
+    fitted: ClassVar[bool] = True
+    summary: ClassVar[str] = "the Bouc-Wen family, Dahl's law at sharpness 1"
+    scale: ClassVar[str] = "chi_slip"
+    typical: ClassVar[dict] = {"sharpness": 1.0}
+
+    def time_stepper(self, params, *, resolution=1.0, linear=None):
+        return BoucWenStepper.from_params(params["delta_EJ"], params["chi_slip"], params["sharpness"])
 
     def _rigidity(self, chi, *, delta_EJ, chi_slip, sharpness):
         return delta_EJ * _bouc_wen_rigidity(chi / chi_slip, sharpness)
