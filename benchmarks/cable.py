@@ -2,14 +2,15 @@
 element model and SlipModel, same run.
 
 Usage: python benchmarks/cable.py [--sets 16 32] [--repeat 7] [--element-repeat 2] [--no-element] [--zoned]
+       [--tests N]
 
 The workload the sampler sees: parameter sets x the thesis's eight dry tests concatenated on the
 frequency axis (8 x 37 = 296 lines, each test's amplitude per line), one core. For each model it
 prints the best wall time of one ``dynamic_stiffness`` call, evaluations (sets x lines) per second,
 and the ratio to the old one-element ``SlipModel`` (benchmarks/_slip_baseline.py) (one element per arm at its rms curvature, 12
 Illinois steps) measured in the same run. ``CableModel`` is the compiled kernel
-(sbcal.model.cable_kernel), ``numpy`` the same model on the numpy formulation it replaced
-(tests/cable_reference.py): their ratio is the kernel's gain, and their largest difference in
+(sbcal.model.cable_kernel) with the compiled five-parameter Iwan law (sbcal.model.laws.iwan_kernel), ``numpy``
+the same model on the numpy formulation they replaced (tests/cable_reference.py, tests/law_reference.py): their ratio is the kernel's gain, and their largest difference in
 ``f_uu`` is printed. Targets (the kernel issue): >= 5x on the numpy formulation, <= 4 ms for 16
 sets x 296 lines. Then, at the first ``--sets``, where the time goes in each: the compliance table,
 the arm constants, the one-compliance start and Newton (mean and largest iterations per entry).
@@ -38,6 +39,7 @@ from _timing import best_time  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.cable_reference import NumpyCableModel  # noqa: E402
+from tests.law_reference import reference_law  # noqa: E402
 
 
 def workload(d, n, seed=0):
@@ -52,6 +54,10 @@ def workload(d, n, seed=0):
                                  micro_exponent=rng.uniform(-0.7, 0.0, n), macro_ratio=rng.uniform(0.0, 0.5, n))),
         "lognormal_iwan": (LognormalIwanLaw(), dict(base, delta_EJ=rng.uniform(30, 60, n),
                                                     chi_median=loguniform(1e-3, 5e-3), log_spread=1.5)),
+        # the law sbcal fits most (its describing function compiled: sbcal.model.laws.iwan_kernel)
+        "iwan5": (law_for("iwan5"), dict(base, delta_EJ=rng.uniform(30, 60, n), chi_micro=loguniform(1e-6, 1e-4),
+                                         chi_macro=loguniform(5e-3, 5e-2), density_exponent=rng.uniform(-1.5, 0.5, n),
+                                         macro_ratio=rng.uniform(0.0, 0.5, n))),
     }
     slip = dict(EJ_slip=rng.uniform(3, 7, n), EJ_stick=rng.uniform(30, 60, n), chi_slip=loguniform(1e-3, 5e-3),
                 slip_exponent=rng.uniform(0.8, 2, n), beta_material=rng.uniform(0.02, 0.1, n),
@@ -97,17 +103,20 @@ def main():
     ap.add_argument("--element-repeat", type=int, default=2)
     ap.add_argument("--no-element", action="store_true", help="skip the (slow) element model")
     ap.add_argument("--zoned", action="store_true", help="also the zoned Iwan law (iwan5_zoned)")
+    ap.add_argument("--tests", type=int, default=len(DEFAULT_TESTS),
+                    help="the first N dry tests (1: a one-test fit's 37 lines, an oiled state or a per-test diagnosis)")
     args = ap.parse_args()
 
     d = resolve_damper("damper1")
-    freq = np.concatenate([STANDARD_GRID_HZ] * len(DEFAULT_TESTS))
-    amp = np.concatenate([test_amplitude(t, STANDARD_GRID_HZ) for t in DEFAULT_TESTS])
+    tests = DEFAULT_TESTS[:args.tests]
+    freq = np.concatenate([STANDARD_GRID_HZ] * len(tests))
+    amp = np.concatenate([test_amplitude(t, STANDARD_GRID_HZ) for t in tests])
     slip_model = SlipModel(amp)
     t0 = time.perf_counter()
     CableModel(IwanLaw()).dynamic_stiffness(d, freq[:2], amp[:2], **workload(d, 1)[0]["iwan"][1])
     print(f"first call of the compiled kernel in this process (compile, or load from numba's cache): "
           f"{time.perf_counter() - t0:.2f} s")
-    print(f"{freq.size} lines (the {len(DEFAULT_TESTS)} dry tests), damper1, one core; best of {args.repeat}")
+    print(f"{freq.size} lines (the first {len(tests)} of the dry tests), damper1, one core; best of {args.repeat}")
     print(f"{'model':40s} {'sets':>5s} {'ms/call':>9s} {'evals/s':>10s} {'x SlipModel':>12s} {'x numpy':>8s}  notes")
     for n in args.sets:
         laws, slip = workload(d, n)
@@ -117,7 +126,7 @@ def main():
         t_ref = best_time(lambda: slip_model(d, freq, **slip), args.repeat)
         print(f"{'SlipModel (1 element, rms)':40s} {n:5d} {t_ref * 1e3:9.1f} {evals / t_ref:10.3g} {1.0:12.2f}")
         for name, (law, params) in laws.items():
-            fast, slow = CableModel(law), NumpyCableModel(law)
+            fast, slow = CableModel(law), NumpyCableModel(reference_law(law))
             st = fast.state(d, freq, amp, **params)
             gap = np.nanmax(np.abs(fast.dynamic_stiffness(d, freq, amp, **params)
                                    / slow.dynamic_stiffness(d, freq, amp, **params) - 1))
@@ -142,7 +151,7 @@ def main():
     print(f"\nwhere the fast model's time goes ({n} sets, {freq.size} lines; best of {args.repeat}; numpy / compiled):")
     for name, (law, params) in laws.items():
         times, its = breakdown(CableModel(law), d, freq, amp, params, args.repeat)
-        ref, _ = breakdown(NumpyCableModel(law), d, freq, amp, params, args.repeat)
+        ref, _ = breakdown(NumpyCableModel(reference_law(law)), d, freq, amp, params, args.repeat)
         print(f"  {name}: Newton iterations per entry mean {its.mean():.2f}, largest {its.max()}")
         for phase, t in times.items():
             print(f"    {phase:34s} {ref[phase] * 1e3:7.2f} / {t * 1e3:7.2f} ms")

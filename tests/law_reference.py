@@ -4,7 +4,9 @@
 :meth:`sbcal.model.laws.base.HysteresisLaw.periodic_moment` (Bouc-Wen's state stepped along the arc and
 its period map solved by Newton; Masing's rule with Madelung's memory), every row stepped together
 sample by sample, and :func:`bw_turning_reference` Bouc-Wen's turning state (every loop's Newton
-together), before the compiled kernels (:mod:`sbcal.model.laws.kernels`) replaced them.
+together), before the compiled kernels (:mod:`sbcal.model.laws.kernels`) replaced them;
+:func:`iwan5_rigidity_reference` the five-parameter Iwan law's describing function before
+:mod:`sbcal.model.laws.iwan_kernel`.
 :func:`reference_law` is a law on these (the whole harmonic balance on the reference):
 ``tests/test_law_kernels.py`` holds the two to 1e-10, ``benchmarks/harmonic_balance.py`` times them
 side by side.
@@ -15,17 +17,26 @@ converged, so a row's last digits depend on the rows beside it; the compiled one
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from sbcal.model.laws.base import jenkins_rigidity
 from sbcal.model.laws.bouc_wen import BoucWenLaw, DahlLaw, _bw_arc, _bw_signed_arc, _bw_signed_inverse
+from sbcal.model.laws.iwan import Iwan5Law, _power_integral, _slip_integral
+from sbcal.model.laws.zones import ZonedLaw
 
 
-__all__ = ["bw_turning_reference", "bw_periodic_reference", "masing_periodic_reference", "reference_law"]
+__all__ = ["bw_turning_reference", "bw_periodic_reference", "masing_periodic_reference", "reference_law",
+           "iwan5_rigidity_reference"]
 
 
 def reference_law(law):
-    """``law`` (an instance) with its periodic operator, and Bouc-Wen's steady-loop branch, on the numpy
-    reference (a subclass: same name and parameters)."""
+    """``law`` (an instance) with its periodic operator, Bouc-Wen's steady-loop branch and the five-parameter
+    Iwan law's describing function on the numpy reference (a subclass: same name and parameters; a zoned
+    law's base law so)."""
+    if isinstance(law, ZonedLaw):
+        return replace(law, base=reference_law(law.base))
     base = type(law)
 
     def _periodic(self, chi, dirs, **p):
@@ -38,6 +49,8 @@ def reference_law(law):
     body = {"_periodic": _periodic, "__module__": __name__}
     if isinstance(law, BoucWenLaw):
         body["_branch"] = _bw_branch_reference
+    if isinstance(law, Iwan5Law):
+        body["_rigidity"] = lambda self, chi, **p: iwan5_rigidity_reference(chi, **p)
     return type("Reference" + base.__name__, (base,), body)()
 
 
@@ -201,3 +214,21 @@ def masing_periodic_reference(backbone, chi, dirs):
         m_out[rows, at], dm_out[rows, at] = m, dm
         prev_k, prev_m, prev_dk, prev_dm = x, m, dx, dm
     return m_out, dm_out
+
+
+def iwan5_rigidity_reference(chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
+    """:class:`sbcal.model.laws.iwan.Iwan5Law`'s describing function in numpy (whole-array passes, scipy's
+    ``betainc`` at both ends of the slip integral): the formulation before :mod:`sbcal.model.laws.iwan_kernel`."""
+    shape = np.broadcast_shapes(np.shape(chi), np.shape(delta_EJ), np.shape(chi_micro), np.shape(chi_macro),
+                                np.shape(density_exponent), np.shape(macro_ratio))
+    chi, dej, lo, hi, c, beta = (np.broadcast_to(np.asarray(v, dtype=float), shape)
+                                 for v in (chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio))
+    k_cont = dej / (1.0 + beta)
+    out = np.array(dej, dtype=complex)  # stuck below chi_micro
+    m = chi > lo
+    if m.any():
+        x_lo, x_hi, p, km = lo[m] / chi[m], hi[m] / chi[m], c[m] + 1.0, k_cont[m]
+        slipping = _slip_integral(x_lo, np.minimum(x_hi, 1.0), p)
+        cont = 1.0 - slipping / _power_integral(x_lo, x_hi, p)
+        out[m] = km * cont + (dej[m] - km) * jenkins_rigidity(x_hi)
+    return out

@@ -14,6 +14,7 @@ from scipy.interpolate import CubicSpline
 
 from ...core.errors import InputError
 from .base import DELTA_EJ, HysteresisLaw, LawParameter, jenkins_rigidity, masing_loop
+from .iwan_kernel import iwan5_rigidity
 from .registry import register
 
 
@@ -179,10 +180,10 @@ class Iwan5Law(HysteresisLaw):
         N = 1 / int_x_lo^x_hi x^(p-1) dx
 
     (stuck while ``x_lo >= 1``), the integral in closed form (:func:`_slip_integral`: powers and an
-    incomplete beta function). Below ``chi_micro`` every wire sticks (``W = 0``: the material loss is
-    :mod:`sbcal.model.cable`'s); between the cut-offs ``W ~ chi_a^(c+3)`` for ``-2 < c``, Coulomb-like
-    ``W ~ chi_a`` for ``c < -2`` (the wires near ``chi_micro`` dominate); above ``chi_macro`` the
-    moment saturates (Coulomb). A Masing law: the loop follows from :meth:`backbone`.
+    incomplete beta function), compiled (:mod:`sbcal.model.laws.iwan_kernel`). Below ``chi_micro`` every
+    wire sticks (``W = 0``: the material loss is :mod:`sbcal.model.cable`'s); between the cut-offs
+    ``W ~ chi_a^(c+3)`` for ``-2 < c``, Coulomb-like ``W ~ chi_a`` for ``c < -2`` (the wires near
+    ``chi_micro`` dominate); above ``chi_macro`` the moment saturates (Coulomb). A Masing law: the loop follows from :meth:`backbone`.
     """
 
     name: ClassVar[str] = "iwan5"
@@ -194,19 +195,10 @@ class Iwan5Law(HysteresisLaw):
     typical: ClassVar[dict] = dict(_TYPICAL_DENSITY, macro_ratio=0.0)
 
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
-        shape = np.broadcast_shapes(np.shape(chi), np.shape(delta_EJ), np.shape(chi_micro), np.shape(chi_macro),
-                                    np.shape(density_exponent), np.shape(macro_ratio))
-        chi, dej, lo, hi, c, beta = (np.broadcast_to(v, shape) for v in (chi, delta_EJ, chi_micro, chi_macro,
-                                                                         density_exponent, macro_ratio))
-        k_cont = dej / (1.0 + beta)
-        out = np.array(dej, dtype=complex)  # stuck below chi_micro
-        m = chi > lo
-        if m.any():
-            x_lo, x_hi, p, km = lo[m] / chi[m], hi[m] / chi[m], c[m] + 1.0, k_cont[m]
-            slipping = _slip_integral(x_lo, np.minimum(x_hi, 1.0), p)
-            cont = 1.0 - slipping / _power_integral(x_lo, x_hi, p)
-            out[m] = km * cont + (dej[m] - km) * jenkins_rigidity(x_hi)
-        return out
+        # compiled (sbcal.model.laws.iwan_kernel): the cable model's compliance table evaluates this most
+        values = np.broadcast_arrays(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio)
+        flat = [np.ascontiguousarray(v, dtype=float).reshape(-1) for v in values]
+        return iwan5_rigidity(*flat, _P_ZERO).reshape(values[0].shape)
 
     def backbone(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
         """Virgin loading curve ``M_b(chi) = int rho(phi) min(chi, phi) dphi`` [N m], chi >= 0."""

@@ -26,52 +26,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from llvmlite import binding as _llvm
-from llvmlite import ir as _ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import get_cython_function_address, intrinsic
+from numba import njit
+
+from .scipy_c import hyp2f1
 
 
 __all__ = ["bw_turning", "bw_periodic", "masing_reversals", "masing_accumulate"]
-
-# scipy.special.hyp2f1 for real arguments, as a C symbol of its own name: a compiled function refers to the
-# symbol (not to an address), so numba's on-disk cache stays valid from one process to the next
-_HYP2F1 = "sbcal_scipy_hyp2f1_double"
-
-
-def _real_hyp2f1_export() -> str:
-    """The name of scipy's exported ``hyp2f1`` for real arguments: the fused specialisation whose capsule
-    signature is all doubles (``__pyx_fuse_1hyp2f1`` in scipy 1.15-1.17), found by its signature so that
-    a renumbering of the fused types does not break the import."""
-    import ctypes
-
-    from scipy.special import cython_special
-
-    name_of = ctypes.pythonapi.PyCapsule_GetName
-    name_of.restype, name_of.argtypes = ctypes.c_char_p, [ctypes.py_object]
-    for key, capsule in cython_special.__pyx_capi__.items():
-        if key.endswith("hyp2f1") and name_of(capsule).startswith(b"double (double, double, double, double"):
-            return key
-    raise ImportError("scipy.special.cython_special exports no real hyp2f1: sbcal's Bouc-Wen kernel needs it")
-
-
-_llvm.add_symbol(_HYP2F1, get_cython_function_address("scipy.special.cython_special", _real_hyp2f1_export()))
-
-
-@intrinsic
-def _hyp2f1(typingctx, a, b, c, x):
-    """``scipy.special.hyp2f1(a, b, c, x)``, real ``x``."""
-    sig = types.float64(types.float64, types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        d = _ir.DoubleType()
-        fn = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(d, [d, d, d, d, _ir.IntType(32)]),
-                                            _HYP2F1)
-        return builder.call(fn, list(args) + [_ir.Constant(_ir.IntType(32), 0)])
-
-    return sig, codegen
-
 
 _BW_NEAR = 0.9  # as sbcal.model.laws.bouc_wen._BW_NEAR
 _END_X, _END_W = np.polynomial.legendre.leggauss(20)  # as sbcal.model.laws.bouc_wen._BW_END_NODES
@@ -100,7 +60,7 @@ def _arc(eta, n, sign, psi):
         tail = 0.5 * (1.0 - y) * tail
         log_gap = -math.log(-math.expm1(n * math.log(eta)))
         return (log_gap - psi - _EULER - tail) / n
-    return eta * _hyp2f1(1.0, 1.0 / n, 1.0 + 1.0 / n, -sign * y)
+    return eta * hyp2f1(1.0, 1.0 / n, 1.0 + 1.0 / n, -sign * y)
 
 
 @njit(cache=True)
