@@ -94,3 +94,28 @@ def test_kernel_gives_nan_outside_the_domain_like_the_model(damper1):
     params["EJ_min"][1] = -1.0
     got = CableModel(law_for("dahl")).dynamic_stiffness(damper1, G, 0.5, **params)
     assert np.isnan(got[1]).all() and np.isfinite(got[[0, 2]]).all()
+
+
+@pytest.mark.parametrize("crowd", [1.0, 1e-3, 1e-6])
+def test_buckets_are_those_of_a_search(crowd):
+    """The compiled bucket walk (``cable_kernel.buckets``) gives the intervals and comparison count of a binary
+    search over the sets' nodes (its numpy formulation, here), with nodes spread evenly or crowded into a
+    ``crowd`` of the span (as where the moment saturates), so that the bucket count doubles."""
+    from sbcal.model import cable_kernel
+
+    rng = np.random.default_rng(5)
+    s, n = 7, 96
+    gaps = rng.uniform(0.1, 1.0, (s, n - 1))
+    gaps[:, 40:70] *= crowd
+    y = np.concatenate([rng.uniform(-30, 0, (s, 1)), gaps], axis=1).cumsum(axis=1)
+    y0, span, rows = y[:, 0], y[:, -1] - y[:, 0], np.arange(s)
+    for nb in (8 * (n - 1), 64 * n):
+        first, steps = cable_kernel.buckets(y, y0, span, nb)
+        edges = y0[:, None] + span[:, None] * (np.arange(nb) / nb)[None, :]
+        z = (y - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
+        ze = (edges - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
+        pos = np.searchsorted(z.ravel(), ze.ravel(), side="right").reshape(s, nb) - n * rows[:, None]
+        np.testing.assert_array_equal(first, np.clip(pos - 1, 0, n - 2))
+        assert steps == int(np.max(np.diff(np.concatenate([pos, np.full((s, 1), n)], axis=1), axis=1)))
+        if crowd < 1:
+            assert steps > 1  # the crowded nodes: more than one comparison even at the most buckets

@@ -309,3 +309,28 @@ def sections(p, rows, eta, zone, zoned, coef, upper, first, y0, y_end, inv_w, nb
                                  coef, upper, first, y0, y_end, inv_w, nb, steps, ends, refs, rates)
             kr_o[q, e], ki_o[q, e], inv_o[q, e] = kr, ki, 1.0 / max(m2, _TINY)
     return kr_o, ki_o, inv_o
+
+
+@njit(cache=True, error_model="numpy")
+def buckets(y, y0, span, nb):
+    """A compliance table's buckets (:func:`sbcal.model.cable_sections._hermite_table`): per set (row of the
+    nodes ``y`` (s, n), increasing) the interval holding each of ``nb`` uniform buckets' lower edge (s, nb),
+    and the most nodes between two edges (the comparisons a lookup needs). One walk along the nodes per set,
+    in the arithmetic of a search over the sets' nodes mapped onto ``[2 r, 2 r + 1]`` (set ``r``), so the
+    intervals are those of that search; a row whose nodes do not increase gets some interval (its table
+    is not monotone: never used)."""
+    s, n = y.shape
+    first = np.empty((s, nb), dtype=np.intp)
+    steps = 0
+    for r in range(s):
+        j, prev = 0, 0
+        for k in range(nb):
+            edge = (y0[r] + span[r] * (k / nb) - y0[r]) / span[r] + 2.0 * r
+            while j < n and (y[r, j] - y0[r]) / span[r] + 2.0 * r <= edge:
+                j += 1
+            first[r, k] = min(max(j - 1, 0), n - 2)
+            if k > 0:
+                steps = max(steps, j - prev)
+            prev = j
+        steps = max(steps, n - prev)
+    return first, steps

@@ -10,6 +10,7 @@ from functools import cached_property
 import numpy as np
 
 from ..core.errors import InputError
+from . import cable_kernel
 from .laws import HysteresisLaw
 
 
@@ -136,14 +137,8 @@ def _hermite_table(y, k, dk, refs, n_buckets_per_node=8, max_steps=1) -> Complia
     y0, y_end = y[:, 0], y[:, -1]
     span = np.maximum(y_end - y0, TINY)
     nb = n_buckets_per_node * (n - 1)
-    while True:
-        # first interval of each bucket; the most nodes inside one bucket is the comparisons needed
-        edges = y0[:, None] + span[:, None] * (np.arange(nb) / nb)[None, :]
-        z = (y - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
-        ze = (edges - y0[:, None]) / span[:, None] + 2.0 * rows[:, None]
-        pos = np.searchsorted(z.ravel(), ze.ravel(), side="right").reshape(s, nb) - n * rows[:, None]
-        first = np.clip(pos - 1, 0, n - 2)
-        steps = int(np.max(np.diff(np.concatenate([pos, np.full((s, 1), n)], axis=1), axis=1), initial=0))
+    while True:  # double the buckets until a lookup needs at most max_steps comparisons
+        first, steps = cable_kernel.buckets(np.ascontiguousarray(y, dtype=float), y0, span, nb)
         if steps <= max_steps or nb >= 64 * n:
             break
         nb *= 2

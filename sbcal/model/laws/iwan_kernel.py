@@ -92,7 +92,7 @@ def iwan5_rigidity(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_
     n = chi.size
     out = np.empty(n, dtype=np.complex128)
     last_a, complete = np.nan, np.nan
-    last_a_lo, complete_lo, last_a_hi, complete_hi = np.nan, np.nan, np.nan, np.nan
+    complete_lo, complete_hi = beta(1.5 - p_zero, 1.5), beta(1.5 + p_zero, 1.5)  # the band's two ends
     for i in range(n):
         dej, lo, hi, beta_ratio = delta_EJ[i], chi_micro[i], chi_macro[i], macro_ratio[i]
         k_cont = dej / (1.0 + beta_ratio)
@@ -103,9 +103,6 @@ def iwan5_rigidity(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_
         x_u = min(x_hi, 1.0)
         p = density_exponent[i] + 1.0
         if abs(p) < p_zero:
-            if last_a_lo != 1.5 - p_zero:
-                last_a_lo, complete_lo = 1.5 - p_zero, beta(1.5 - p_zero, 1.5)
-                last_a_hi, complete_hi = 1.5 + p_zero, beta(1.5 + p_zero, 1.5)
             lo_re, lo_im = _slip_integral(x_lo, x_u, -p_zero, complete_lo)
             hi_re, hi_im = _slip_integral(x_lo, x_u, p_zero, complete_hi)
             t = (p + p_zero) / (2.0 * p_zero)
