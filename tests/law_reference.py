@@ -5,8 +5,8 @@
 its period map solved by Newton; Masing's rule with Madelung's memory), every row stepped together
 sample by sample, and :func:`bw_turning_reference` Bouc-Wen's turning state (every loop's Newton
 together), before the compiled kernels (:mod:`sbcal.model.laws.kernels`) replaced them;
-:func:`iwan5_rigidity_reference` the five-parameter Iwan law's describing function before
-:mod:`sbcal.model.laws.iwan_kernel`.
+:func:`iwan5_rigidity_reference` the five-parameter Iwan law's describing function and
+:func:`slip_integral_reference` the Iwan laws' slip integral before :mod:`sbcal.model.laws.iwan_kernel`.
 :func:`reference_law` is a law on these (the whole harmonic balance on the reference):
 ``tests/test_law_kernels.py`` holds the two to 1e-10, ``benchmarks/harmonic_balance.py`` times them
 side by side.
@@ -18,17 +18,21 @@ converged, so a row's last digits depend on the rows beside it; the compiled one
 from __future__ import annotations
 
 from dataclasses import replace
+from unittest import mock
 
 import numpy as np
+from scipy import special
 
 from sbcal.model.laws.base import jenkins_rigidity
 from sbcal.model.laws.bouc_wen import BoucWenLaw, DahlLaw, _bw_arc, _bw_signed_arc, _bw_signed_inverse
-from sbcal.model.laws.iwan import Iwan5Law, _power_integral, _slip_integral
+from sbcal.model.laws import iwan
+from sbcal.model.laws.iwan import _P_ZERO as P_ZERO
+from sbcal.model.laws.iwan import Iwan5Law, IwanTailLaw, _power_integral
 from sbcal.model.laws.zones import ZonedLaw
 
 
 __all__ = ["bw_turning_reference", "bw_periodic_reference", "masing_periodic_reference", "reference_law",
-           "iwan5_rigidity_reference"]
+           "iwan5_rigidity_reference", "slip_integral_reference"]
 
 
 def reference_law(law):
@@ -51,7 +55,15 @@ def reference_law(law):
         body["_branch"] = _bw_branch_reference
     if isinstance(law, Iwan5Law):
         body["_rigidity"] = lambda self, chi, **p: iwan5_rigidity_reference(chi, **p)
+    if isinstance(law, IwanTailLaw):
+        body["_rigidity"] = _tail_rigidity_reference
     return type("Reference" + base.__name__, (base,), body)()
+
+
+def _tail_rigidity_reference(self, chi, **p):
+    """:meth:`sbcal.model.laws.iwan.IwanTailLaw._rigidity` on the numpy slip integral."""
+    with mock.patch.object(iwan, "_slip_integral", slip_integral_reference):
+        return IwanTailLaw._rigidity(self, chi, **p)
 
 
 def _bw_branch_reference(self, chi, chi_a, *, delta_EJ, chi_slip, sharpness):
@@ -228,7 +240,37 @@ def iwan5_rigidity_reference(chi, *, delta_EJ, chi_micro, chi_macro, density_exp
     m = chi > lo
     if m.any():
         x_lo, x_hi, p, km = lo[m] / chi[m], hi[m] / chi[m], c[m] + 1.0, k_cont[m]
-        slipping = _slip_integral(x_lo, np.minimum(x_hi, 1.0), p)
+        slipping = slip_integral_reference(x_lo, np.minimum(x_hi, 1.0), p)
         cont = 1.0 - slipping / _power_integral(x_lo, x_hi, p)
         out[m] = km * cont + (dej[m] - km) * jenkins_rigidity(x_hi)
     return out
+
+
+def slip_integral_reference(x1, x2, p):
+    """The numpy formulation of :func:`sbcal.model.laws.iwan._slip_integral` (before
+    :mod:`sbcal.model.laws.iwan_kernel`): ``int_x1^x2 x^(p-1) (1 - J(x)) dx`` for ``0 < x1 <= x2 <= 1`` and
+    ``p > -3/2`` (J: Jenkins).
+
+    Real part by parts (``1 - g`` vanishes at 1, ``g' = 8 sqrt(x (1 - x)) / pi``)::
+
+        [x^p (1 - g(x)) / p + 8 B(x; p + 3/2, 3/2) / (pi p)]_x1^x2
+
+    with ``B`` the incomplete beta integral; imaginary part ``-(4 / pi) int x^p (1 - x) dx``.
+    The two real terms are ~1/p each: for ``|p| < P_ZERO`` (a log-uniform density) the value is
+    the linear interpolation between ``p = +-P_ZERO``: its error ~P_ZERO^2 (ln x1)^2 and the
+    rounding ~eps / P_ZERO are both ~1e-10 of the integral.
+    """
+    near = np.abs(p) < P_ZERO
+    if near.any():
+        lo = slip_integral_reference(x1, x2, np.where(near, -P_ZERO, p))
+        hi = slip_integral_reference(x1, x2, np.where(near, P_ZERO, p))
+        t = (np.where(near, p, 0.0) + P_ZERO) / (2 * P_ZERO)
+        return np.where(near, lo + t * (hi - lo), hi)
+
+    def primitive(x):
+        g = jenkins_rigidity(x).real
+        b = special.betainc(p + 1.5, 1.5, x) * special.beta(p + 1.5, 1.5)
+        return (np.exp(p * np.log(x)) * (1.0 - g) + 8.0 * b / np.pi) / p
+
+    im = -(4.0 / np.pi) * (_power_integral(x1, x2, p + 1.0) - _power_integral(x1, x2, p + 2.0))
+    return primitive(x2) - primitive(x1) + 1j * im

@@ -140,3 +140,23 @@ def test_iwan5_describing_function_is_the_numpy_one():
     chis = 10 ** np.linspace(-8, 1, 96)[None, :]
     np.testing.assert_allclose(law_for("iwan5").slip_rigidity(chis, **grid),
                                iwan5_rigidity_reference(chis, **grid), rtol=0, atol=1e-11 * 60)
+
+
+def test_tail_law_on_the_compiled_slip_integral_is_the_numpy_one():
+    """The Iwan law with a power-law tail uses the compiled slip integral at both of its segments: against
+    the numpy integral (``tests/law_reference.py``) to 1e-11 of ``delta_EJ`` over its domain, both sides of
+    ``chi_tail`` and within the p = 0 band (1e-8 there, as for ``iwan5``)."""
+    rng = np.random.default_rng(12)
+    n = 20000
+    p = dict(delta_EJ=rng.uniform(1, 60, n), chi_micro=10 ** rng.uniform(-7, -1, n),
+             density_exponent=rng.uniform(-2.4, 2, n), tail_exponent=rng.uniform(-2.45, -1.05, n))
+    p["chi_tail"] = p["chi_micro"] * 10 ** rng.uniform(1e-4, 6, n)
+    chi = 10 ** rng.uniform(-8, 1, n)
+    near = np.zeros(n, dtype=bool)
+    near[:500] = True
+    p["density_exponent"][near] = -1.0 + rng.uniform(-2e-6, 2e-6, 500)
+    law = law_for("iwan_tail")
+    gap = np.abs(law.slip_rigidity(chi, **p) - reference_law(law).slip_rigidity(chi, **p)) / p["delta_EJ"]
+    assert np.all(np.isfinite(gap))
+    assert gap[~near].max() < 1e-11
+    assert gap[near].max() < 1e-8

@@ -14,7 +14,7 @@ from scipy.interpolate import CubicSpline
 
 from ...core.errors import InputError
 from .base import DELTA_EJ, HysteresisLaw, LawParameter, jenkins_rigidity, masing_loop
-from .iwan_kernel import iwan5_rigidity
+from .iwan_kernel import iwan5_rigidity, slip_integral
 from .registry import register
 
 
@@ -123,7 +123,7 @@ def _power_integral(x1, x2, q):
 
 
 def _slip_integral(x1, x2, p):
-    """``int_x1^x2 x^(p-1) (1 - J(x)) dx`` for ``0 < x1 <= x2 <= 1`` and ``p > -3/2`` (J: Jenkins).
+    """``int_x1^x2 x^(p-1) (1 - J(x)) dx`` for ``0 < x1 <= x2 <= 1`` and ``p > -3/2`` (J: Jenkins), broadcast.
 
     Real part by parts (``1 - g`` vanishes at 1, ``g' = 8 sqrt(x (1 - x)) / pi``)::
 
@@ -132,22 +132,12 @@ def _slip_integral(x1, x2, p):
     with ``B`` the incomplete beta integral; imaginary part ``-(4 / pi) int x^p (1 - x) dx``.
     The two real terms are ~1/p each: for ``|p| < _P_ZERO`` (a log-uniform density) the value is
     the linear interpolation between ``p = +-_P_ZERO``: its error ~_P_ZERO^2 (ln x1)^2 and the
-    rounding ~eps / _P_ZERO are both ~1e-10 of the integral.
+    rounding ~eps / _P_ZERO are both ~1e-10 of the integral. Compiled
+    (:func:`sbcal.model.laws.iwan_kernel.slip_integral`; its numpy formulation is ``tests/law_reference.py``'s).
     """
-    near = np.abs(p) < _P_ZERO
-    if near.any():
-        lo = _slip_integral(x1, x2, np.where(near, -_P_ZERO, p))
-        hi = _slip_integral(x1, x2, np.where(near, _P_ZERO, p))
-        t = (np.where(near, p, 0.0) + _P_ZERO) / (2 * _P_ZERO)
-        return np.where(near, lo + t * (hi - lo), hi)
-
-    def primitive(x):
-        g = jenkins_rigidity(x).real
-        b = special.betainc(p + 1.5, 1.5, x) * special.beta(p + 1.5, 1.5)
-        return (np.exp(p * np.log(x)) * (1.0 - g) + 8.0 * b / np.pi) / p
-
-    im = -(4.0 / np.pi) * (_power_integral(x1, x2, p + 1.0) - _power_integral(x1, x2, p + 2.0))
-    return primitive(x2) - primitive(x1) + 1j * im
+    values = np.broadcast_arrays(x1, x2, p)
+    flat = [np.ascontiguousarray(v, dtype=float).reshape(-1) for v in values]
+    return slip_integral(*flat, _P_ZERO).reshape(values[0].shape)
 
 
 # from far below any bench curvature (Segalman's Iwan-4, no cut-off) to the bench's middle; < the upper cut-off

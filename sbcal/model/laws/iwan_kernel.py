@@ -27,7 +27,7 @@ from numba import njit
 from .scipy_c import beta, betainc
 
 
-__all__ = ["iwan5_rigidity"]
+__all__ = ["iwan5_rigidity", "slip_integral"]
 
 _SERIES_X = 0.3  # B(x; a, 3/2) by its power series below this x (ratio of terms -> x: ~30 terms to 1e-16)
 _SERIES_TERMS = 200
@@ -115,4 +115,26 @@ def iwan5_rigidity(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_
         j_re, j_im = _jenkins(x_hi)
         out[i] = complex(k_cont * (1.0 - s_re / norm) + (dej - k_cont) * j_re,
                          k_cont * (-s_im / norm) + (dej - k_cont) * j_im)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def slip_integral(x1, x2, p, p_zero):
+    """:func:`sbcal.model.laws.iwan._slip_integral` elementwise: ``int_x1^x2 x^(p-1) (1 - J(x)) dx`` for
+    ``0 < x1 <= x2 <= 1``, ``p > -3/2`` (each (n,)), interpolated across ``|p| < p_zero``. Complex (n,)."""
+    n = x1.size
+    out = np.empty(n, dtype=np.complex128)
+    last_a, complete = np.nan, np.nan
+    complete_lo, complete_hi = beta(1.5 - p_zero, 1.5), beta(1.5 + p_zero, 1.5)
+    for i in range(n):
+        if abs(p[i]) < p_zero:
+            lo_re, lo_im = _slip_integral(x1[i], x2[i], -p_zero, complete_lo)
+            hi_re, hi_im = _slip_integral(x1[i], x2[i], p_zero, complete_hi)
+            t = (p[i] + p_zero) / (2.0 * p_zero)
+            out[i] = complex(lo_re + t * (hi_re - lo_re), lo_im + t * (hi_im - lo_im))
+        else:
+            if p[i] + 1.5 != last_a:
+                last_a, complete = p[i] + 1.5, beta(p[i] + 1.5, 1.5)
+            re, im = _slip_integral(x1[i], x2[i], p[i], complete)
+            out[i] = complex(re, im)
     return out
