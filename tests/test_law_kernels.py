@@ -3,6 +3,8 @@
 loops (several maxima per period), flat steps, micro-slip and saturation; Bouc-Wen's turning state;
 and the harmonic balance on either."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -140,6 +142,14 @@ def test_iwan5_describing_function_is_the_numpy_one():
     chis = 10 ** np.linspace(-8, 1, 96)[None, :]
     np.testing.assert_allclose(law_for("iwan5").slip_rigidity(chis, **grid),
                                iwan5_rigidity_reference(chis, **grid), rtol=0, atol=1e-11 * 60)
+    # scalars and broadcast views reach the kernel without a warning (numba reads its arguments' flags)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        one = {k: float(v[0]) for k, v in p.items()}
+        assert np.isfinite(law_for("iwan5").slip_rigidity(1e-3, **one))
+        assert np.isfinite(law_for("iwan_tail").slip_rigidity(
+            np.full(3, 1e-3), **{k: one[k] for k in ("delta_EJ", "chi_micro", "density_exponent")},
+            chi_tail=one["chi_macro"], tail_exponent=-1.5)).all()
 
 
 def test_tail_law_on_the_compiled_slip_integral_is_the_numpy_one():

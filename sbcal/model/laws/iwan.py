@@ -136,7 +136,7 @@ def _slip_integral(x1, x2, p):
     (:func:`sbcal.model.laws.iwan_kernel.slip_integral`; its numpy formulation is ``tests/law_reference.py``'s).
     """
     values = np.broadcast_arrays(x1, x2, p)
-    flat = [np.ascontiguousarray(v, dtype=float).reshape(-1) for v in values]
+    flat = [np.array(v, dtype=float).reshape(-1) for v in values]  # copies: numba reads a broadcast view's flags
     return slip_integral(*flat, _P_ZERO).reshape(values[0].shape)
 
 
@@ -187,7 +187,7 @@ class Iwan5Law(HysteresisLaw):
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
         # compiled (sbcal.model.laws.iwan_kernel): the cable model's compliance table evaluates this most
         values = np.broadcast_arrays(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio)
-        flat = [np.ascontiguousarray(v, dtype=float).reshape(-1) for v in values]
+        flat = [np.array(v, dtype=float).reshape(-1) for v in values]  # copies: numba reads a broadcast view's flags
         return iwan5_rigidity(*flat, _P_ZERO).reshape(values[0].shape)
 
     def backbone(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
