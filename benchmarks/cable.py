@@ -5,15 +5,17 @@ Usage: python benchmarks/cable.py [--sets 16 32] [--repeat 7] [--element-repeat 
        [--tests N]
 
 The workload the sampler sees: parameter sets x the thesis's eight dry tests concatenated on the
-frequency axis (8 x 37 = 296 lines, each test's amplitude per line), one core. For each model it
-prints the best wall time of one ``dynamic_stiffness`` call, evaluations (sets x lines) per second,
-and the ratio to the old one-element ``SlipModel`` (benchmarks/_slip_baseline.py) (one element per arm at its rms curvature, 12
-Illinois steps) measured in the same run. ``CableModel`` is the compiled kernel
-(sbcal.model.cable_kernel) with the compiled five-parameter Iwan law (sbcal.model.laws.iwan_kernel), ``numpy``
-the same model on the numpy formulation they replaced (tests/cable_reference.py, tests/law_reference.py): their ratio is the kernel's gain, and their largest difference in
-``f_uu`` is printed. Targets (the kernel issue): >= 5x on the numpy formulation, <= 4 ms for 16
-sets x 296 lines. Then, at the first ``--sets``, where the time goes in each: the compliance table,
-the arm constants, the one-compliance start and Newton (mean and largest iterations per entry).
+frequency axis (8 x 37 = 296 lines, each test's amplitude per line; ``--tests 1``: one test's 37, a one-test
+fit's), one core. For each model it prints the best wall time of one ``dynamic_stiffness`` call,
+evaluations (sets x lines) per second, and the ratio to the old one-element ``SlipModel``
+(benchmarks/_slip_baseline.py: one element per arm at its rms curvature, 12 Illinois steps) measured in the
+same run. ``CableModel`` is the compiled kernel (sbcal.model.cable_kernel) with the Iwan laws compiled
+(sbcal.model.laws.iwan_kernel), ``numpy`` the same model on the numpy formulations they replaced
+(tests/cable_reference.py, tests/law_reference.py; the table's bucket walk is compiled in both): their ratio
+is the kernels' gain, and their largest difference in ``f_uu`` is printed. Targets (the kernel issue):
+>= 5x on the numpy formulation, <= 4 ms for 16 sets x 296 lines. Then, at the first ``--sets``, where the
+time goes in each: the compliance table, the arm constants, the one-compliance start and Newton (mean and
+largest iterations per entry).
 The first call's compile time (or cache load) is printed first.
 """
 

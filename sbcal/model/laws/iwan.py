@@ -135,9 +135,15 @@ def _slip_integral(x1, x2, p):
     rounding ~eps / _P_ZERO are both ~1e-10 of the integral. Compiled
     (:func:`sbcal.model.laws.iwan_kernel.slip_integral`; its numpy formulation is ``tests/law_reference.py``'s).
     """
-    values = np.broadcast_arrays(x1, x2, p)
-    flat = [np.array(v, dtype=float).reshape(-1) for v in values]  # copies: numba reads a broadcast view's flags
-    return slip_integral(*flat, _P_ZERO).reshape(values[0].shape)
+    shape, flat = _flat(x1, x2, p)
+    return slip_integral(*flat, _P_ZERO).reshape(shape)
+
+
+def _flat(*values) -> tuple:
+    """The broadcast shape of ``values`` and each as a 1-D float array of it, copied (numba, typing a call,
+    reads its arguments' flags: a broadcast view's warn) for :mod:`sbcal.model.laws.iwan_kernel`."""
+    values = np.broadcast_arrays(*values)
+    return values[0].shape, [np.array(v, dtype=float).reshape(-1) for v in values]
 
 
 # from far below any bench curvature (Segalman's Iwan-4, no cut-off) to the bench's middle; < the upper cut-off
@@ -173,7 +179,8 @@ class Iwan5Law(HysteresisLaw):
     incomplete beta function), compiled (:mod:`sbcal.model.laws.iwan_kernel`). Below ``chi_micro`` every
     wire sticks (``W = 0``: the material loss is :mod:`sbcal.model.cable`'s); between the cut-offs
     ``W ~ chi_a^(c+3)`` for ``-2 < c``, Coulomb-like ``W ~ chi_a`` for ``c < -2`` (the wires near
-    ``chi_micro`` dominate); above ``chi_macro`` the moment saturates (Coulomb). A Masing law: the loop follows from :meth:`backbone`.
+    ``chi_micro`` dominate); above ``chi_macro`` the moment saturates (Coulomb). A Masing law: the loop
+    follows from :meth:`backbone`.
     """
 
     name: ClassVar[str] = "iwan5"
@@ -186,9 +193,8 @@ class Iwan5Law(HysteresisLaw):
 
     def _rigidity(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
         # compiled (sbcal.model.laws.iwan_kernel): the cable model's compliance table evaluates this most
-        values = np.broadcast_arrays(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio)
-        flat = [np.array(v, dtype=float).reshape(-1) for v in values]  # copies: numba reads a broadcast view's flags
-        return iwan5_rigidity(*flat, _P_ZERO).reshape(values[0].shape)
+        shape, flat = _flat(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio)
+        return iwan5_rigidity(*flat, _P_ZERO).reshape(shape)
 
     def backbone(self, chi, *, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio):
         """Virgin loading curve ``M_b(chi) = int rho(phi) min(chi, phi) dphi`` [N m], chi >= 0."""
