@@ -1,11 +1,11 @@
-"""The five-parameter Iwan law's describing function compiled (numba): one fused loop per point.
+"""The Iwan laws' describing functions compiled (numba): the five-parameter law's in one fused loop per
+point, and the slip integral every Iwan law with cut-offs calls (:func:`slip_integral`).
 
 :class:`sbcal.model.laws.iwan.Iwan5Law` is the law sbcal fits most, and its describing function is what
 the cable model's compliance table evaluates (~230 curvatures per parameter set and call): in numpy it
 cost ~0.7 us a point, most of it two incomplete beta functions and the temporaries of ~40 array passes,
 more than the cable's Newton on a one-test fit (``docs/cable.md``, "Speed"). Here each point runs the
-arithmetic of the numpy formulation (:func:`sbcal.model.laws.iwan._slip_integral`, kept: the tail law
-and the tests use it) in registers, with
+arithmetic of the numpy formulation (``tests/law_reference.py``) in registers, with
 
 - the incomplete beta integral ``B(x; a, 3/2)`` from its power series where ``x <= 0.3`` (at most ~30
   terms to rounding; the lower cut-off ``x_lo = chi_micro / chi_a`` mostly lies there), scipy's own
@@ -84,6 +84,23 @@ def _slip_integral(x1, x2, p, complete):
     return upper - lower, im
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _slip_point(x1, x2, p, p_zero, ends, last_a, complete):
+    """:func:`_slip_integral` at one point, interpolated across ``|p| < p_zero`` (as the numpy formulation)
+    between the band's ends, whose ``Beta(+-p_zero + 3/2, 3/2)`` are ``ends``; ``last_a`` and ``complete``:
+    the last ``a = p + 3/2`` and its ``Beta(a, 3/2)`` (the table's points share their set's exponent).
+    Returns ``(Re, Im, last_a, complete)``: the memo passed on in registers."""
+    if abs(p) < p_zero:
+        lo_re, lo_im = _slip_integral(x1, x2, -p_zero, ends[0])
+        hi_re, hi_im = _slip_integral(x1, x2, p_zero, ends[1])
+        t = (p + p_zero) / (2.0 * p_zero)
+        return lo_re + t * (hi_re - lo_re), lo_im + t * (hi_im - lo_im), last_a, complete
+    if p + 1.5 != last_a:
+        last_a, complete = p + 1.5, beta(p + 1.5, 1.5)
+    re, im = _slip_integral(x1, x2, p, complete)
+    return re, im, last_a, complete
+
+
 @njit(cache=True, error_model="numpy")
 def iwan5_rigidity(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_ratio, p_zero):
     """``EJ_slip*`` of :class:`sbcal.model.laws.iwan.Iwan5Law` at curvature amplitudes ``chi`` (n,) >= 0,
@@ -91,8 +108,8 @@ def iwan5_rigidity(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_
     interpolated between ``p = +-p_zero`` (as the numpy formulation). Returns complex (n,)."""
     n = chi.size
     out = np.empty(n, dtype=np.complex128)
+    ends = (beta(1.5 - p_zero, 1.5), beta(1.5 + p_zero, 1.5))
     last_a, complete = np.nan, np.nan
-    complete_lo, complete_hi = beta(1.5 - p_zero, 1.5), beta(1.5 + p_zero, 1.5)  # the band's two ends
     for i in range(n):
         dej, lo, hi, beta_ratio = delta_EJ[i], chi_micro[i], chi_macro[i], macro_ratio[i]
         k_cont = dej / (1.0 + beta_ratio)
@@ -100,17 +117,8 @@ def iwan5_rigidity(chi, delta_EJ, chi_micro, chi_macro, density_exponent, macro_
             out[i] = complex(dej, 0.0)
             continue
         x_lo, x_hi = lo / chi[i], hi / chi[i]
-        x_u = min(x_hi, 1.0)
         p = density_exponent[i] + 1.0
-        if abs(p) < p_zero:
-            lo_re, lo_im = _slip_integral(x_lo, x_u, -p_zero, complete_lo)
-            hi_re, hi_im = _slip_integral(x_lo, x_u, p_zero, complete_hi)
-            t = (p + p_zero) / (2.0 * p_zero)
-            s_re, s_im = lo_re + t * (hi_re - lo_re), lo_im + t * (hi_im - lo_im)
-        else:
-            if p + 1.5 != last_a:
-                last_a, complete = p + 1.5, beta(p + 1.5, 1.5)
-            s_re, s_im = _slip_integral(x_lo, x_u, p, complete)
+        s_re, s_im, last_a, complete = _slip_point(x_lo, min(x_hi, 1.0), p, p_zero, ends, last_a, complete)
         norm = _power_integral(x_lo, x_hi, p)
         j_re, j_im = _jenkins(x_hi)
         out[i] = complex(k_cont * (1.0 - s_re / norm) + (dej - k_cont) * j_re,
@@ -124,17 +132,9 @@ def slip_integral(x1, x2, p, p_zero):
     ``0 < x1 <= x2 <= 1``, ``p > -3/2`` (each (n,)), interpolated across ``|p| < p_zero``. Complex (n,)."""
     n = x1.size
     out = np.empty(n, dtype=np.complex128)
+    ends = (beta(1.5 - p_zero, 1.5), beta(1.5 + p_zero, 1.5))
     last_a, complete = np.nan, np.nan
-    complete_lo, complete_hi = beta(1.5 - p_zero, 1.5), beta(1.5 + p_zero, 1.5)
     for i in range(n):
-        if abs(p[i]) < p_zero:
-            lo_re, lo_im = _slip_integral(x1[i], x2[i], -p_zero, complete_lo)
-            hi_re, hi_im = _slip_integral(x1[i], x2[i], p_zero, complete_hi)
-            t = (p[i] + p_zero) / (2.0 * p_zero)
-            out[i] = complex(lo_re + t * (hi_re - lo_re), lo_im + t * (hi_im - lo_im))
-        else:
-            if p[i] + 1.5 != last_a:
-                last_a, complete = p[i] + 1.5, beta(p[i] + 1.5, 1.5)
-            re, im = _slip_integral(x1[i], x2[i], p[i], complete)
-            out[i] = complex(re, im)
+        re, im, last_a, complete = _slip_point(x1[i], x2[i], p[i], p_zero, ends, last_a, complete)
+        out[i] = complex(re, im)
     return out
