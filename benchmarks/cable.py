@@ -105,8 +105,9 @@ def main():
     ap.add_argument("--element-repeat", type=int, default=2)
     ap.add_argument("--no-element", action="store_true", help="skip the (slow) element model")
     ap.add_argument("--zoned", action="store_true", help="also the zoned Iwan law (iwan5_zoned)")
-    ap.add_argument("--tests", type=int, default=len(DEFAULT_TESTS),
-                    help="the first N dry tests (1: a one-test fit's 37 lines, an oiled state or a per-test diagnosis)")
+    ap.add_argument("--tests", type=int, default=len(DEFAULT_TESTS), choices=range(1, len(DEFAULT_TESTS) + 1),
+                    metavar="N", help="the first N dry tests, 1-%(default)s (1: a one-test fit's 37 lines, an oiled "
+                                      "state or a per-test diagnosis)")
     args = ap.parse_args()
 
     d = resolve_damper("damper1")
