@@ -19,9 +19,9 @@ Steps:
    curvature where the Hessian is not negative definite, a small ball where even that fails) and
    moved within itself (:class:`_Ensembles`) by differential evolution and, in a fraction
    ``independence`` of the proposals, by an independence move: a draw from a transport-map proposal
-   fitted to the ensemble's own kept steps at the end of the previous round (t variables along the
-   principal axes, the narrow ones' centres bent along the wide ones; the Laplace approximation in
-   the first round, where it is negative definite). All are held side by side in one
+   fitted to the ensemble's own kept steps at the end of the previous round (a multivariate t in the
+   principal axes whose narrow directions' centres bend along the widest ones; the Laplace
+   approximation in the first round, where it is negative definite). All are held side by side in one
    ``emcee.EnsembleSampler`` so that one vectorised log-density call advances every ensemble
    (``workers > 1`` splits them over processes). Each ensemble draws from its own generator and
    sees only its own steps, so the ensembles are independent chains and the draws do not depend on
