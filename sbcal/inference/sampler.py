@@ -352,7 +352,7 @@ class _MapProposal:
         """The t of location ``mean`` and covariance ``cov`` (no bend)."""
         n = len(mean)
         return cls(mean=np.asarray(mean, float), whiten=np.eye(n), bent=0, coef=np.zeros((1, n)),
-                   chol=np.linalg.cholesky(cov * (_T_DOF - 2) / _T_DOF))
+                   chol=np.linalg.cholesky(cov))
 
     def draw(self, rng, n) -> np.ndarray:
         v = rng.standard_normal((n, self.mean.size)) @ self.chol.T
@@ -378,7 +378,7 @@ def _fit_map(x, mean, whiten, bent: int) -> _MapProposal | None:
     coef, *_ = np.linalg.lstsq(f, v[:, bent:], rcond=None)
     v[:, bent:] -= f @ coef
     try:
-        chol = np.linalg.cholesky(np.atleast_2d(np.cov(v.T)) * (_T_DOF - 2) / _T_DOF)  # a t of that covariance
+        chol = np.linalg.cholesky(np.atleast_2d(np.cov(v.T)))  # a t of 5/3 that covariance: wider tails
     except np.linalg.LinAlgError:
         return None
     return _MapProposal(mean=mean, whiten=whiten, bent=bent, coef=coef, chol=chol)
