@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from sbcal.inference.priors import Prior
-from sbcal.inference.sampler import POLICY, SamplerConfig, _fit_map, _fit_proposal, _laplace, sample
+from sbcal.inference.proposal import fit_map, fit_proposal
+from sbcal.inference.sampler import POLICY, SamplerConfig, _laplace, sample
 
 MEAN = np.array([1.0, -2.0, 0.5])
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, -0.3], [0.0, -0.3, 0.5]])
@@ -153,7 +154,7 @@ def test_map_proposal_density_is_that_of_its_draws():
     # the share of its draws in the box
     rng = np.random.default_rng(5)
     xy = Banana.draw(rng, 20000)[:, 2:]
-    prop = _fit_proposal(xy.reshape(2000, 10, 2), 6)
+    prop = fit_proposal(xy.reshape(2000, 10, 2), 6)
     assert prop.bent >= 1  # the curve is found
     h = 0.02  # the grid's cell [1]: its midpoints over [-8, 8] x [-6, 14]
     X, Y = np.meshgrid(np.arange(-8 + h / 2, 8, h), np.arange(-6 + h / 2, 14, h), indexing="ij")
@@ -172,15 +173,15 @@ def test_map_proposal_density_is_that_of_its_draws():
 def test_map_proposal_follows_a_curved_ridge_an_ellipsoid_misses():
     rng = np.random.default_rng(6)
     fit, held = Banana.draw(rng, 20000), Banana.draw(rng, 20000)
-    bent = _fit_proposal(fit.reshape(2000, 10, 4), 6)
-    ellipsoid = _fit_map(fit, bent.mean, bent.whiten, 0)  # the same whitening: the densities compare
+    bent = fit_proposal(fit.reshape(2000, 10, 4), 6)
+    ellipsoid = fit_map(fit, bent.mean, bent.whiten, 0)  # the same whitening: the densities compare
     # held-out mean log density = -KL(posterior || proposal) + const: measured 1.75 nats closer
     gain = np.mean(bent.log_density(held)) - np.mean(ellipsoid.log_density(held))
     assert bent.bent >= 1 and gain > 1.0
-    assert _fit_proposal(fit.reshape(2000, 10, 4), 0).bent == 0  # bend 0 (a test's fit): the t alone
+    assert fit_proposal(fit.reshape(2000, 10, 4), 0).bent == 0  # bend 0 (a test's fit): the t alone
     # and on a Gaussian no bend is kept
     gauss = rng.standard_normal((20000, 4)) @ np.diag([1.0, 2.0, 3.0, 4.0])
-    assert _fit_proposal(gauss.reshape(2000, 10, 4), 6).bent == 0
+    assert fit_proposal(gauss.reshape(2000, 10, 4), 6).bent == 0
 
 
 @pytest.mark.slow

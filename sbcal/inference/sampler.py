@@ -51,6 +51,7 @@ from scipy.optimize import differential_evolution, minimize
 
 from ..core.progress import progress_bar
 from ..core.workers import default_workers, one_blas_thread, process_pool
+from .proposal import MapProposal, fit_proposal
 from .stats import convergence
 
 
@@ -96,7 +97,7 @@ class SamplerConfig:
         evolution alone.
     bend : int
         How many of the posterior's widest directions the independence proposal may bend its narrow ones
-        along (:class:`_MapProposal`; chosen per round on held-out steps, 0 where a bend does not pay); 0,
+        along (:class:`MapProposal`; chosen per round on held-out steps, 0 where a bend does not pay); 0,
         the default, proposes from the multivariate t alone. A cable state's fit bends (a weakly determined
         law is a thin curved ridge); a test's few parameters do not (measured: a bound-hugging damping
         parameter's autocorrelation grew 3x with the bend).
@@ -318,115 +319,6 @@ def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
 
 # --- the ensembles -------------------------------------------------------------------------
 
-_T_DOF = 5.0  # the independence proposal's t: heavier tails than a near-Gaussian posterior
-_MIN_GAIN = 0.02  # nats per point a bend must add to the held-out density to be kept
-
-
-def _bend_features(d) -> np.ndarray:
-    """Regressors on the wide coordinates ``d (n, k)``: a constant, each, and their pairwise products."""
-    a, b = np.triu_indices(d.shape[1])
-    return np.concatenate([np.ones((len(d), 1)), d, d[:, a] * d[:, b]], axis=1)
-
-
-@dataclass(frozen=True)
-class _MapProposal:
-    """One ensemble's independence proposal: a multivariate t, bent along the posterior's widest directions.
-
-    Whitened along the principal axes, widest first, ``u = W (x - mean) = (d, r)`` with ``d`` the first
-    ``bent`` coordinates, the map ``(d, r) -> (d, r - C f(d))`` (``f`` :func:`_bend_features`: a constant,
-    ``d`` and its pairwise products) takes the posterior to a multivariate t (``_T_DOF`` degrees of
-    freedom, scale ``chol chol^T``). A posterior that is a thin curved ridge (narrow directions whose
-    centre moves with a wide one, as a cable law's onset and scale trade against each other on one test)
-    is then proposed along its curve, where an ellipsoid proposes mostly off it. ``bent = 0`` is the t
-    approximation of the posterior (the first round's, from the Laplace approximation). Both maps have a
-    constant Jacobian (``W`` fixed; the bend triangular with unit diagonal), so the density below is
-    exact up to a constant and the independence move's Metropolis-Hastings ratio holds.
-    """
-
-    mean: np.ndarray
-    whiten: np.ndarray  # W, (ndim, ndim)
-    bent: int
-    coef: np.ndarray  # C, (n_features, ndim - bent)
-    chol: np.ndarray  # (ndim, ndim): the t's scale
-    # made once: W^-1 (transposed), chol^-1 and -log det chol
-    _made: tuple = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self):
-        object.__setattr__(self, "_made", (np.linalg.inv(self.whiten).T, np.linalg.inv(self.chol),
-                                           -np.log(np.diag(self.chol)).sum()))
-
-    @classmethod
-    def ellipsoid(cls, mean, cov) -> "_MapProposal":
-        """The t of location ``mean`` and covariance ``cov`` (no bend)."""
-        n = len(mean)
-        return cls(mean=np.asarray(mean, float), whiten=np.eye(n), bent=0, coef=np.zeros((1, n)),
-                   chol=np.linalg.cholesky(cov))
-
-    def draw(self, rng, n) -> np.ndarray:
-        v = rng.standard_normal((n, self.mean.size)) @ self.chol.T
-        v *= np.sqrt(_T_DOF / rng.chisquare(_T_DOF, n))[:, None]
-        v[:, self.bent:] += _bend_features(v[:, :self.bent]) @ self.coef if self.bent else self.coef[0]
-        return self.mean + v @ self._made[0]
-
-    def log_density(self, x) -> np.ndarray:
-        """Up to a constant of ``W`` and the dimension (so proposals of one whitening compare)."""
-        v = (np.atleast_2d(x) - self.mean) @ self.whiten.T
-        v[:, self.bent:] -= _bend_features(v[:, :self.bent]) @ self.coef if self.bent else self.coef[0]
-        y = v @ self._made[1].T
-        return self._made[2] - 0.5 * (_T_DOF + self.mean.size) * np.log1p(np.einsum("ij,ij->i", y, y) / _T_DOF)
-
-
-def _fit_map(x, mean, whiten, bent: int) -> _MapProposal | None:
-    """The proposal of ``bent`` wide directions fitted to points ``x (n, ndim)`` whitened by ``whiten`` (least
-    squares for the bend, the bent points' covariance for the t), or None where it is degenerate."""
-    v = (x - mean) @ whiten.T
-    f = _bend_features(v[:, :bent])
-    if len(x) < 4 * f.shape[1]:
-        return None
-    coef, *_ = np.linalg.lstsq(f, v[:, bent:], rcond=None)
-    v[:, bent:] -= f @ coef
-    try:
-        chol = np.linalg.cholesky(np.atleast_2d(np.cov(v.T)))  # a t of 5/3 that covariance: wider tails
-    except np.linalg.LinAlgError:
-        return None
-    return _MapProposal(mean=mean, whiten=whiten, bent=bent, coef=coef, chol=chol)
-
-
-def _fit_proposal(chain, bend: int = 0) -> _MapProposal | None:
-    """The proposal of one ensemble from its own kept steps ``(steps, walkers, ndim)``, or None where they do
-    not span every direction. How many wide directions bend the rest is chosen on the steps themselves:
-    fitted on the first half, the one whose density is highest on the second half (the smallest
-    Kullback-Leibler divergence from the posterior to the proposal, which the independence move's
-    acceptance rests on), then refitted on all of them."""
-    x = chain.reshape(-1, chain.shape[-1])
-    cov = np.atleast_2d(np.cov(x.T))
-    sd = np.sqrt(np.diag(cov))
-    if not np.all(np.isfinite(sd) & (sd > 0)):
-        return None
-    try:
-        ev, vec = np.linalg.eigh(cov + 1e-10 * np.diag(np.diag(cov)))
-    except np.linalg.LinAlgError:
-        return None
-    if not ev.min() > 0:
-        return None
-    order = np.argsort(ev)[::-1]
-    mean, whiten = x.mean(axis=0), (vec[:, order] / np.sqrt(ev[order])).T
-    half = len(chain) // 2
-    first, second = chain[:half].reshape(-1, x.shape[1]), chain[half:].reshape(-1, x.shape[1])
-    best, best_held = 0, None
-    for bent in range(min(x.shape[1] - 1, bend) + 1):
-        trial = _fit_map(first, mean, whiten, bent)
-        if trial is None:
-            break
-        held = trial.log_density(second)
-        gain = held - best_held if best_held is not None else None
-        # a bend must pay: its held-out gain beyond 0.02 nats a point and twice its standard error (the
-        # points are correlated, so this error is a floor), else a Gaussian posterior would keep one by chance
-        if gain is None or gain.mean() > max(_MIN_GAIN, 2 * gain.std() / math.sqrt(len(gain))):
-            best, best_held = bent, held
-    return _fit_map(x, mean, whiten, best)
-
-
 class _Ensembles(emcee.moves.Move):
     """Moves for several independent ensembles held side by side in one emcee sampler, so that one
     vectorised log-density call advances all of them.
@@ -438,7 +330,7 @@ class _Ensembles(emcee.moves.Move):
       half (ter Braak 2006; ``gamma = 2.38 / sqrt(2 ndim)`` with a 1e-5 relative jitter as emcee's
       ``DEMove``, and ``gamma = 1`` in a tenth of the proposals, ter Braak's jump between modes);
     - or, with probability ``independence`` where the ensemble has a proposal, an independence move:
-      a draw from that ensemble's transport-map proposal (:class:`_MapProposal`, fitted by :func:`sample` to the
+      a draw from that ensemble's transport-map proposal (:class:`MapProposal`, fitted by :func:`sample` to the
       ensemble's own earlier steps and fixed for the round), accepted with the ratio
       ``p(x') q(x) / (p(x) q(x'))``. Where the posterior is close to its Gaussian approximation it
       decorrelates a walker in a few steps, where differential evolution needs ~4 ndim; where it is
@@ -601,7 +493,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         accepted = np.zeros(len(coords))
         n, block = 0, min(config.first_steps, config.max_steps)
         # the first round's independence proposal: the Laplace approximation at the mode
-        first = _MapProposal.ellipsoid(z0, _capped_cov(prior, cov)) if full else None
+        first = MapProposal.ellipsoid(z0, _capped_cov(prior, cov)) if full else None
         proposals = [first] * config.n_ensembles
         with process_pool(len(groups)) as pool:
             while True:
@@ -639,7 +531,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 # at most doubling the run: the estimate of tau falls as the proposals improve
                 block = min(max(more, n // 10, 50), n, config.max_steps - n)
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
-                    proposals = [_fit_proposal(c[burn:], config.bend) for c in per]
+                    proposals = [fit_proposal(c[burn:], config.bend) for c in per]
     natural = prior.to_natural(x.reshape(-1, prior.ndim))
     params = {nm: natural[:, i] for i, nm in enumerate(names)}
     loglik = None
