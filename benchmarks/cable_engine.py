@@ -1,12 +1,15 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
-Usage: python benchmarks/cable_engine.py [--posteriors uniform zoned matrix] [--engines emcee nautilus]
+Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned matrix]
+       [--engines emcee emcee-t nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
 Posteriors (``--posteriors``):
 
 - ``uniform``: damper1's dry cable state under ``iwan5`` on the bundled bench (8 tests, 6 parameters + the
   geometry);
+- ``oiled``: damper1's oiled cable state under ``iwan5`` (one test: a weakly determined law, a thin curved
+  ridge);
 - ``zoned``: the in-family ``iwan5_zoned`` of ``benchmarks/zones_identifiability.py`` (damper2, 5 amplitudes
   x 8 runs of the zoned fast model itself; 17 parameters);
 - ``matrix``: the misspecified ``zoned_iwan5`` row of ``benchmarks/cable_matrix.py`` (the stubby damper,
@@ -14,8 +17,11 @@ Posteriors (``--posteriors``):
 
 Engines (``--engines``), each to sbcal's convergence rule where it has one:
 
-- ``emcee``: sbcal's engine (:func:`sbcal.inference.sampler.sample`: 4 ensembles of differential
-  evolution and an independence t move), capped at ``--steps`` steps per ensemble;
+- ``emcee``: sbcal's engine as a cable fit runs it (:func:`sbcal.inference.cable_fit.cable_config`: 4
+  ensembles of differential evolution and an independence move from a t bent along the posterior's widest
+  directions, half of each chain burnt), capped at ``--steps`` steps per ensemble;
+- ``emcee-t``: the same engine with the t alone and a fifth burnt (a test's fit; the cable fits' engine
+  before the bend): the baseline of ``emcee``;
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -31,6 +37,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.inference.cable_fit import cable_config, cable_likelihood, sample_cable  # noqa: E402
+from sbcal.inference.sampler import SamplerConfig  # noqa: E402
 from sbcal.model.damper import load_damper, resolve_damper  # noqa: E402
 
 
@@ -64,6 +72,10 @@ def posterior(name: str, seed: int):
         data = clean_bench(load_bench(default_bench_path()))
         tests = [t for t in data.tests(d.name) if not t.endswith("oiled")]
         return cable_likelihood(d, data, tests, "iwan5"), {}
+    if name == "oiled":
+        d = resolve_damper("damper1")
+        data = clean_bench(load_bench(default_bench_path()))
+        return cable_likelihood(d, data, [t for t in data.tests(d.name) if t.endswith("oiled")], "iwan5"), {}
     if name == "zoned":
         from zones_identifiability import make_bench
         d = resolve_damper("damper2")
@@ -83,8 +95,10 @@ def posterior(name: str, seed: int):
     raise SystemExit(f"unknown posterior {name!r}")
 
 
-def run_emcee(like, seed, steps, workers) -> dict:
+def run_emcee(like, seed, steps, workers, bend=True) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
+    if not bend:
+        cfg = replace(cfg, bend=0, burn_fraction=SamplerConfig.burn_fraction)
     t0 = time.perf_counter()
     res = sample_cable(like, seed=np.random.SeedSequence(seed), config=cfg)
     wall = time.perf_counter() - t0
@@ -125,8 +139,8 @@ def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "zoned", "matrix"])
-    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "nautilus"])
+    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "matrix"])
+    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=4100)
@@ -142,7 +156,7 @@ def main(argv=None) -> int:
                 print(f"  nautilus: {r['wall_s']:.0f} s, {r['calls']} evaluations, n_eff {r['n_eff']:.0f}, "
                       f"{r['ess_per_min']:.1f} ESS/min, log Z {r['log_z']:.1f}")
             else:
-                r = run_emcee(like, args.seed, args.steps, args.workers)
+                r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine == "emcee")
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
                       f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}")
