@@ -109,17 +109,19 @@ def fit_proposal(chain, bend: int = 0) -> MapProposal | None:
         return None
     order = np.argsort(ev)[::-1]
     mean, whiten = x.mean(axis=0), (vec[:, order] / np.sqrt(ev[order])).T
-    half = len(chain) // 2
-    first, second = chain[:half].reshape(-1, x.shape[1]), chain[half:].reshape(-1, x.shape[1])
-    best, best_held = 0, None
-    for bent in range(min(x.shape[1] - 1, bend) + 1):
-        trial = fit_map(first, mean, whiten, bent)
-        if trial is None:
-            break
-        held = trial.log_density(second)
-        gain = held - best_held if best_held is not None else None
-        # a bend must pay: its held-out gain beyond 0.02 nats a point and twice its standard error (the
-        # points are correlated, so this error is a floor), else a Gaussian posterior would keep one by chance
-        if gain is None or gain.mean() > max(MIN_GAIN, 2 * gain.std() / math.sqrt(len(gain))):
-            best, best_held = bent, held
+    best = 0
+    if bend:  # the held-out choice; without a bend allowed there is nothing to choose
+        half = len(chain) // 2
+        first, second = chain[:half].reshape(-1, x.shape[1]), chain[half:].reshape(-1, x.shape[1])
+        best_held = None
+        for bent in range(min(x.shape[1] - 1, bend) + 1):
+            trial = fit_map(first, mean, whiten, bent)
+            if trial is None:
+                break
+            held = trial.log_density(second)
+            gain = held - best_held if best_held is not None else None
+            # a bend must pay: its held-out gain beyond 0.02 nats a point and twice its standard error (the
+            # points are correlated, so this error is a floor), else a Gaussian posterior would keep one by chance
+            if gain is None or gain.mean() > max(MIN_GAIN, 2 * gain.std() / math.sqrt(len(gain))):
+                best, best_held = bent, held
     return fit_map(x, mean, whiten, best)

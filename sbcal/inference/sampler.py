@@ -18,10 +18,10 @@ Steps:
    (its walkers drawn from the Laplace approximation at the mode; from each parameter's own
    curvature where the Hessian is not negative definite, a small ball where even that fails) and
    moved within itself (:class:`_Ensembles`) by differential evolution and, in a fraction
-   ``independence`` of the proposals, by an independence move: a draw from a transport-map proposal
-   fitted to the ensemble's own kept steps at the end of the previous round (a multivariate t in the
-   principal axes whose narrow directions' centres bend along the widest ones; the Laplace
-   approximation in the first round, where it is negative definite). All are held side by side in one
+   ``independence`` of the proposals, by an independence move: a draw from a proposal fitted to the
+   ensemble's own kept steps at the end of the previous round (:mod:`sbcal.inference.proposal`: a
+   multivariate t, its narrow directions' centres bent along the widest ones where ``bend`` allows; the
+   Laplace approximation in the first round, where it is negative definite). All are held side by side in one
    ``emcee.EnsembleSampler`` so that one vectorised log-density call advances every ensemble
    (``workers > 1`` splits them over processes). Each ensemble draws from its own generator and
    sees only its own steps, so the ensembles are independent chains and the draws do not depend on
@@ -330,7 +330,7 @@ class _Ensembles(emcee.moves.Move):
       half (ter Braak 2006; ``gamma = 2.38 / sqrt(2 ndim)`` with a 1e-5 relative jitter as emcee's
       ``DEMove``, and ``gamma = 1`` in a tenth of the proposals, ter Braak's jump between modes);
     - or, with probability ``independence`` where the ensemble has a proposal, an independence move:
-      a draw from that ensemble's transport-map proposal (:class:`MapProposal`, fitted by :func:`sample` to the
+      a draw from that ensemble's proposal (:class:`MapProposal`, fitted by :func:`sample` to the
       ensemble's own earlier steps and fixed for the round), accepted with the ratio
       ``p(x') q(x) / (p(x) q(x'))``. Where the posterior is close to its Gaussian approximation it
       decorrelates a walker in a few steps, where differential evolution needs ~4 ndim; where it is
