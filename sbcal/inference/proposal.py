@@ -17,6 +17,7 @@ __all__ = ["MapProposal", "fit_proposal"]
 
 T_DOF = 5.0  # the independence proposal's t: heavier tails than a near-Gaussian posterior
 MIN_GAIN = 0.02  # nats per point a bend must add to the held-out density to be kept
+BOX_TRIES = 8  # redraws of a proposal outside the prior box (a posterior piled against a bound)
 
 
 def bend_features(d) -> np.ndarray:
@@ -59,7 +60,21 @@ class MapProposal:
         return cls(mean=np.asarray(mean, float), whiten=np.eye(n), bent=0, coef=np.zeros((1, n)),
                    chol=np.linalg.cholesky(cov))
 
-    def draw(self, rng, n) -> np.ndarray:
+    def draw(self, rng, n, lower=None, upper=None) -> np.ndarray:
+        """``n`` draws; with a box (``lower``, ``upper``: ``(ndim,)``) each draw outside it is drawn again, up
+        to ``BOX_TRIES`` times: the draws inside then follow this density restricted to the box (its constant
+        cancels in the Metropolis-Hastings ratio), and one still outside is rejected as before."""
+        x = self._draw(rng, n)
+        if lower is None:
+            return x
+        for _ in range(BOX_TRIES):
+            out = np.flatnonzero(np.any((x < lower) | (x > upper), axis=1))
+            if not out.size:
+                break
+            x[out] = self._draw(rng, out.size)
+        return x
+
+    def _draw(self, rng, n) -> np.ndarray:
         v = rng.standard_normal((n, self.mean.size)) @ self.chol.T
         v *= np.sqrt(T_DOF / rng.chisquare(T_DOF, n))[:, None]
         v[:, self.bent:] += bend_features(v[:, :self.bent]) @ self.coef if self.bent else self.coef[0]
