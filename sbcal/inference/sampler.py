@@ -12,8 +12,8 @@ picklable object with
 
 Steps:
 
-1. **Start**: the posterior mode, from a differential-evolution search over the prior box (or the
-   caller's ``start``), polished by L-BFGS-B.
+1. **Start**: the posterior mode, the best of local ascents from the caller's ``start``, or else from a
+   differential-evolution search over the prior box and from the best points of a Sobol design of it.
 2. **Ensembles**: ``n_ensembles`` independent ensembles of walkers, each started from its own seed
    (its walkers drawn from the Laplace approximation at the mode; from each parameter's own
    curvature where the Hessian is not negative definite, a small ball where even that fails) and
@@ -353,8 +353,8 @@ class _Ensembles(emcee.moves.Move):
       ``DEMove``, and ``gamma = 1`` in a tenth of the proposals, ter Braak's jump between modes);
     - or, with probability ``independence`` where the ensemble has a proposal, an independence move:
       a draw from that ensemble's proposal (:class:`MapProposal`, fitted by :func:`sample` to the
-      ensemble's own earlier steps and fixed for the round), accepted with the ratio
-      ``p(x') q(x) / (p(x) q(x'))``. Where the posterior is close to its Gaussian approximation it
+      ensemble's own earlier steps and fixed for the round; a draw outside the prior box drawn again),
+      accepted with the ratio ``p(x') q(x) / (p(x) q(x'))``. Where the posterior is close to its Gaussian approximation it
       decorrelates a walker in a few steps, where differential evolution needs ~4 ndim; where it is
       not (curved beyond the proposal's quadratic bend, several modes), it is mostly rejected and
       differential evolution does the work.
