@@ -12,8 +12,8 @@ picklable object with
 
 Steps:
 
-1. **Start**: the posterior mode, the best of local ascents from the caller's ``start``, or else from a
-   differential-evolution search over the prior box and from the best points of a Sobol design of it.
+1. **Start**: the posterior mode: the caller's ``start`` polished by L-BFGS-B, or else the best of local
+   ascents from a differential-evolution search over the prior box and from the best points of a Sobol design.
 2. **Ensembles**: ``n_ensembles`` independent ensembles of walkers, each started from its own seed
    (its walkers drawn from the Laplace approximation at the mode; from each parameter's own
    curvature where the Hessian is not negative definite, a small ball where even that fails) and
@@ -250,9 +250,9 @@ def _ascend(target, z0) -> tuple[np.ndarray, float]:
 
 
 def _start(target, start, rng, config) -> np.ndarray:
-    """The posterior mode in ``z``: the best of local ascents (:func:`_ascend`) from ``start``, or from the
-    best point of a differential-evolution search over the box and from the ``START_ASCENTS`` best points of
-    a Sobol design of it. The search alone is not enough: its population can collapse into one mode of a
+    """The posterior mode in ``z``: ``start`` polished by L-BFGS-B, or else the best of local ascents
+    (:func:`_ascend`) from the best point of a differential-evolution search over the box and from the
+    ``START_ASCENTS`` best points of a Sobol design of it. The search alone is not enough: its population can collapse into one mode of a
     posterior with several (damper1's viscous damping at 0.1 mm: material damping alone, viscous alone, or
     a mix, 16 nats apart; the search found the lowest)."""
     prior = target.prior
@@ -265,10 +265,19 @@ def _start(target, start, rng, config) -> np.ndarray:
                                      updating="deferred", init="sobol")
         design = lo + width * qmc.Sobol(prior.ndim, seed=rng).random(START_DESIGN)
         starts = [res.x, *design[np.argsort(cost(design.T), kind="stable")[:START_ASCENTS]]]
-    else:
-        starts = [prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float)]
-    ends = [_ascend(target, np.clip(z, lo + 1e-9 * width, hi - 1e-9 * width)) for z in starts]
-    return min(ends, key=lambda e: e[1])[0]
+        ends = [_ascend(target, np.clip(z, lo + 1e-9 * width, hi - 1e-9 * width)) for z in starts]
+        return min(ends, key=lambda e: e[1])[0]
+    # a caller's start (a cable fit's own search, a population's): polished as before, by L-BFGS-B with scipy's
+    # forward differences. Polished by _ascend it ends ~1e-4 away, and tests/test_population.py's joint fit of
+    # population and units, which that moves onto another path, then stops at the step cap (tau 345): a fit
+    # that converges on one path and not on another, kept as it was until its mixing is looked at.
+    z0 = np.clip(prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float),
+                 lo + 1e-9 * width, hi - 1e-9 * width)
+    cost = _cost(target)
+    f0 = cost(z0[:, None])[0]
+    res = minimize(lambda z: cost(z[:, None])[0], z0, method="L-BFGS-B", bounds=list(zip(lo, hi)),
+                   options={"maxiter": 1000})
+    return res.x if np.isfinite(res.fun) and res.fun <= f0 else z0
 
 
 def _laplace(target, z0) -> tuple:
