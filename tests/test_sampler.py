@@ -287,3 +287,46 @@ def test_the_start_finds_the_higher_mode_the_search_misses():
         found_by_start += bool(np.all(np.abs(_start(target, None, np.random.default_rng(seed), FAST) - 4) < 0.01))
     assert found_by_search <= 6  # 3 of 20 when written: the search alone mostly misses it
     assert found_by_start == 20
+
+
+class Counting(TwoModes):
+    """TwoModes that counts its calls, and fails on one chosen call."""
+
+    def __init__(self, fail_at=None):
+        super().__init__()
+        self.calls, self.fail_at = 0, fail_at
+
+    def __call__(self, z):
+        self.calls += 1
+        if self.calls == self.fail_at:
+            raise FloatingPointError("the model failed")
+        return super().__call__(z)
+
+
+def test_ascents_side_by_side_end_where_each_alone_does_in_fewer_calls():
+    from sbcal.inference.sampler import _ascend
+
+    starts = np.random.default_rng(1).uniform(-8, 8, size=(12, 2))
+    starts[3] = (3.9, 4.15)  # in the narrow mode's basin
+    alone, calls_alone = [], []
+    for z in starts:
+        target = Counting()
+        alone.append(_ascend(target, z[None])[0])
+        calls_alone.append(target.calls)
+    together = Counting()
+    ends = _ascend(together, starts)
+    for (z1, c1), (z2, c2) in zip(alone, ends):
+        # the rows of a batch are evaluated as alone: the same L-BFGS-B path, to the last bit of its arithmetic
+        np.testing.assert_allclose(z2, z1, rtol=0, atol=1e-12)
+        assert c2 == pytest.approx(c1, abs=1e-12)
+    assert {round(float(z[0])) for z, _ in ends} == {-3, 4}  # both basins reached from these starts
+    # one call a round: as many calls as the longest ascent alone makes, not their sum
+    assert together.calls == max(calls_alone) < sum(calls_alone) / 3
+
+
+def test_a_failing_evaluation_reaches_the_caller_of_the_ascents():
+    from sbcal.inference.sampler import _ascend
+
+    starts = np.random.default_rng(2).uniform(-8, 8, size=(6, 2))
+    with pytest.raises(FloatingPointError, match="the model failed"):
+        _ascend(Counting(fail_at=2), starts)  # every thread stops; none waits forever

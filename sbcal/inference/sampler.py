@@ -42,7 +42,9 @@ Steps:
 from __future__ import annotations
 
 import math
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import emcee
@@ -231,53 +233,110 @@ def _cost(target):
     return cost
 
 
-def _ascend(target, z0) -> tuple[np.ndarray, float]:
-    """A local ascent of the log-density from ``z0`` inside the box (L-BFGS-B); its gradient by central
-    differences, the ``2 ndim + 1`` points in one vectorised call (one-sided on a bound). ``(z, cost)``."""
+class _Lockstep:
+    """One vectorised call of ``cost`` per round for several optimisers run side by side, one per thread.
+
+    Each optimiser's objective hands its points over and waits; when every optimiser still running has
+    handed its points over, they are evaluated in one call, in the optimisers' order. A per-test target
+    costs about as much for a few hundred points as for a few (0.6 ms a call at 7 points), so the start's
+    33 ascents cost about as much as one. The rounds and their contents depend only on the values, not on
+    the threads' timing: the same seed gives the same ends."""
+
+    def __init__(self, cost, n: int):
+        self.cost, self.active = cost, n
+        self.pending, self.results, self.error = {}, {}, None
+        self.cond = threading.Condition()
+
+    def __call__(self, i: int, zt: np.ndarray) -> np.ndarray:
+        with self.cond:
+            self.pending[i] = zt
+            self._maybe_run()
+            self.cond.wait_for(lambda: i in self.results or self.error is not None)
+            if self.error is not None:
+                raise self.error
+            return self.results.pop(i)
+
+    def done(self) -> None:
+        with self.cond:
+            self.active -= 1
+            self._maybe_run()
+
+    def _maybe_run(self) -> None:
+        if not self.pending or len(self.pending) < self.active:
+            return
+        keys = sorted(self.pending)
+        blocks = [self.pending.pop(k) for k in keys]
+        try:
+            c = self.cost(np.hstack(blocks))
+        except BaseException as e:  # every waiting optimiser re-raises it
+            self.error = e
+        else:
+            for k, part in zip(keys, np.split(c, np.cumsum([b.shape[1] for b in blocks])[:-1])):
+                self.results[k] = part
+        self.cond.notify_all()
+
+
+def _ascend(target, starts, *, central: bool = True) -> list[tuple[np.ndarray, float]]:
+    """Local ascents of the log-density inside the box (L-BFGS-B), one from each of ``starts`` (n, ndim),
+    side by side (:class:`_Lockstep`); ``[(z, cost)]``, each end no worse than its start.
+
+    ``central``: the gradient by central differences, the ``2 ndim + 1`` points in one call (one-sided on a
+    bound); else scipy's forward differences, one point a call (a caller's start, polished as before)."""
     prior = target.prior
     lo, hi = prior.z_lower, prior.z_upper
-    cost, h, eye = _cost(target), 1e-6 * (hi - lo), np.eye(prior.ndim, dtype=bool)
+    h, eye = 1e-6 * (hi - lo), np.eye(prior.ndim, dtype=bool)
+    starts = np.atleast_2d(starts)
+    batch = _Lockstep(_cost(target), len(starts))
 
-    def cost_and_gradient(z):
-        up, down = np.minimum(z + h, hi), np.maximum(z - h, lo)
-        c = cost(np.vstack([z, np.where(eye, up, z), np.where(eye, down, z)]).T)
-        return c[0], (c[1:prior.ndim + 1] - c[prior.ndim + 1:]) / (up - down)
+    def one(i):
+        z0 = starts[i]
+        try:
+            f0 = batch(i, z0[:, None])[0]
+            if central:
+                def fun(z):
+                    up, down = np.minimum(z + h, hi), np.maximum(z - h, lo)
+                    c = batch(i, np.vstack([z, np.where(eye, up, z), np.where(eye, down, z)]).T)
+                    return c[0], (c[1:prior.ndim + 1] - c[prior.ndim + 1:]) / (up - down)
+            else:
+                def fun(z):
+                    return batch(i, z[:, None])[0]
+            res = minimize(fun, z0, jac=central, method="L-BFGS-B", bounds=list(zip(lo, hi)),
+                           options={"maxiter": 1000})
+        finally:
+            batch.done()
+        return (res.x, float(res.fun)) if np.isfinite(res.fun) and res.fun <= f0 else (z0, float(f0))
 
-    f0 = cost(z0[:, None])[0]
-    res = minimize(cost_and_gradient, z0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi)),
-                   options={"maxiter": 1000})
-    return (res.x, float(res.fun)) if np.isfinite(res.fun) and res.fun <= f0 else (z0, float(f0))
+    if len(starts) == 1:
+        return [one(0)]
+    with ThreadPoolExecutor(len(starts)) as pool:
+        return list(pool.map(one, range(len(starts))))
 
 
 def _start(target, start, rng, config) -> np.ndarray:
     """The posterior mode in ``z``: ``start`` polished by L-BFGS-B, or else the best of local ascents
     (:func:`_ascend`) from the best point of a differential-evolution search over the box and from the
-    ``START_ASCENTS`` best points of a Sobol design of it. The search alone is not enough: its population can collapse into one mode of a
-    posterior with several (damper1's viscous damping at 0.1 mm: material damping alone, viscous alone, or
-    a mix, 16 nats apart; the search found the lowest)."""
+    ``START_ASCENTS`` best points of a Sobol design of it. The search alone is not enough: its population
+    can collapse into one mode of a posterior with several (damper1's viscous damping at 0.1 mm: material
+    damping alone, viscous alone, or a mix, 16 nats apart; the search found the lowest)."""
     prior = target.prior
     lo, hi = prior.z_lower, prior.z_upper
     width = hi - lo
+    inside = lambda z: np.clip(z, lo + 1e-9 * width, hi - 1e-9 * width)  # noqa: E731
     if start is None:
         cost = _cost(target)
         res = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=max(1, math.ceil(config.de_population / prior.ndim)),
                                      maxiter=config.de_generations, tol=1e-6, seed=rng, polish=False, vectorized=True,
                                      updating="deferred", init="sobol")
         design = lo + width * qmc.Sobol(prior.ndim, seed=rng).random(START_DESIGN)
-        starts = [res.x, *design[np.argsort(cost(design.T), kind="stable")[:START_ASCENTS]]]
-        ends = [_ascend(target, np.clip(z, lo + 1e-9 * width, hi - 1e-9 * width)) for z in starts]
-        return min(ends, key=lambda e: e[1])[0]
-    # a caller's start (a cable fit's own search, a population's): polished as before, by L-BFGS-B with scipy's
-    # forward differences. Polished by _ascend it ends ~1e-4 away, and tests/test_population.py's joint fit of
-    # population and units, which that moves onto another path, then stops at the step cap (tau 345): a fit
-    # that converges on one path and not on another, kept as it was until its mixing is looked at.
-    z0 = np.clip(prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float),
-                 lo + 1e-9 * width, hi - 1e-9 * width)
-    cost = _cost(target)
-    f0 = cost(z0[:, None])[0]
-    res = minimize(lambda z: cost(z[:, None])[0], z0, method="L-BFGS-B", bounds=list(zip(lo, hi)),
-                   options={"maxiter": 1000})
-    return res.x if np.isfinite(res.fun) and res.fun <= f0 else z0
+        starts = np.vstack([res.x, design[np.argsort(cost(design.T), kind="stable")[:START_ASCENTS]]])
+        return min(_ascend(target, inside(starts)), key=lambda e: e[1])[0]
+    # a caller's start (a cable fit's own search, a population's): polished by scipy's forward differences, as
+    # before the ascents. Polished by central differences it ends ~1e-4 away, and tests/test_population.py's
+    # joint fit of population and units, which that moves onto another path, then stops at the step cap
+    # (tau 345): a fit that converges on one path and not on another, kept as it was until its mixing is
+    # looked at.
+    z0 = prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float)
+    return _ascend(target, inside(z0)[None], central=False)[0][0]
 
 
 def _laplace(target, z0) -> tuple:
@@ -394,10 +453,12 @@ class _Ensembles(emcee.moves.Move):
                 q = coords[s] + gamma[:, None] * (coords[c[a]] - coords[c[b]])
                 lu = np.log(rng.random(len(s)))
                 if tp is not None and self.independence > 0:
-                    indep = rng.random(len(s)) < self.independence
-                    q[indep] = tp.draw(rng, int(indep.sum()), *self.box)
-                    # Metropolis-Hastings: the proposal's density ratio moves the threshold
-                    lu = lu - np.where(indep, tp.log_density(coords[s]) - tp.log_density(q), 0.0)
+                    indep = np.flatnonzero(rng.random(len(s)) < self.independence)
+                    q[indep] = tp.draw(rng, indep.size, *self.box)
+                    # Metropolis-Hastings: the proposal's density ratio moves the threshold (one call, on the
+                    # independence moves alone: the density is the engine's costliest small step)
+                    ld = tp.log_density(np.concatenate([coords[s[indep]], q[indep]]))
+                    lu[indep] -= ld[:indep.size] - ld[indep.size:]
                 proposals.append(q)
                 log_u.append(lu)
                 moving.append(s)
