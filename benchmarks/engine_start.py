@@ -2,8 +2,8 @@
 
 Usage: python benchmarks/engine_start.py [--damper damper1] [--effects fixture_mass sensor_delay ...] [--seed 0]
 
-For each per-test diagnosis target of the damper (the effects' models, every test), the start's search and Sobol
-design as ``sbcal.inference.sampler._start`` makes them (``START_ASCENTS`` + 1 points), then the ascents from
+For each per-test diagnosis target of the damper (the effects' models, every test), the start's points
+(``sbcal.inference.sampler._start_points``: ``START_ASCENTS`` + 1), then the ascents from
 those points two ways in the same run, interleaved target by target: one after the other (each its own calls)
 and side by side (``_ascend`` on all of them). Reports the wall time of each, their ratio, the target's calls
 and the largest difference of the ends (0 when a batch's rows are evaluated as alone). One process, one BLAS
@@ -17,8 +17,6 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from scipy.optimize import differential_evolution  # noqa: E402
-from scipy.stats import qmc  # noqa: E402
 
 from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
@@ -39,20 +37,6 @@ class Counted:
         return self.target(z)
 
 
-def starts_of(target, rng, config):
-    """The start's ascent points, as ``_start`` draws them."""
-    prior = target.prior
-    lo, hi = prior.z_lower, prior.z_upper
-    width = hi - lo
-    cost = sampler._cost(target)
-    res = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=max(1, -(-config.de_population // prior.ndim)),
-                                 maxiter=config.de_generations, tol=1e-6, seed=rng, polish=False, vectorized=True,
-                                 updating="deferred", init="sobol")
-    design = lo + width * qmc.Sobol(prior.ndim, seed=rng).random(sampler.START_DESIGN)
-    z = np.vstack([res.x, design[np.argsort(cost(design.T), kind="stable")[:sampler.START_ASCENTS]]])
-    return np.clip(z, lo + 1e-9 * width, hi - 1e-9 * width)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--damper", default="damper1")
@@ -71,7 +55,7 @@ def main():
                         config=config, prior_path=None)
         for job in jobs:
             sc = config.sampler(job.target.prior.ndim)
-            starts = starts_of(job.target, np.random.default_rng(job.stream), sc)
+            starts = sampler._start_points(job.target, np.random.default_rng(job.stream), sc)
             one, side = Counted(job.target), Counted(job.target)
             t0 = time.perf_counter()
             ends_one = [sampler._ascend(one, z[None])[0] for z in starts]

@@ -312,31 +312,41 @@ def _ascend(target, starts, *, central: bool = True) -> list[tuple[np.ndarray, f
         return list(pool.map(one, range(len(starts))))
 
 
+def _inside(prior, z) -> np.ndarray:
+    """``z`` moved just inside the box (an ascent's start on a bound has no gradient across it)."""
+    width = prior.z_upper - prior.z_lower
+    return np.clip(z, prior.z_lower + 1e-9 * width, prior.z_upper - 1e-9 * width)
+
+
+def _start_points(target, rng, config) -> np.ndarray:
+    """Where :func:`_start` ascends from when no start is given, ``(START_ASCENTS + 1, ndim)``: the best point of
+    a differential-evolution search over the box, then the ``START_ASCENTS`` best of a Sobol design of it."""
+    prior = target.prior
+    lo, hi = prior.z_lower, prior.z_upper
+    cost = _cost(target)
+    res = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=max(1, math.ceil(config.de_population / prior.ndim)),
+                                 maxiter=config.de_generations, tol=1e-6, seed=rng, polish=False, vectorized=True,
+                                 updating="deferred", init="sobol")
+    design = lo + (hi - lo) * qmc.Sobol(prior.ndim, seed=rng).random(START_DESIGN)
+    return _inside(prior, np.vstack([res.x, design[np.argsort(cost(design.T), kind="stable")[:START_ASCENTS]]]))
+
+
 def _start(target, start, rng, config) -> np.ndarray:
     """The posterior mode in ``z``: ``start`` polished by L-BFGS-B, or else the best of local ascents
     (:func:`_ascend`) from the best point of a differential-evolution search over the box and from the
     ``START_ASCENTS`` best points of a Sobol design of it. The search alone is not enough: its population
     can collapse into one mode of a posterior with several (damper1's viscous damping at 0.1 mm: material
     damping alone, viscous alone, or a mix, 16 nats apart; the search found the lowest)."""
-    prior = target.prior
-    lo, hi = prior.z_lower, prior.z_upper
-    width = hi - lo
-    inside = lambda z: np.clip(z, lo + 1e-9 * width, hi - 1e-9 * width)  # noqa: E731
     if start is None:
-        cost = _cost(target)
-        res = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=max(1, math.ceil(config.de_population / prior.ndim)),
-                                     maxiter=config.de_generations, tol=1e-6, seed=rng, polish=False, vectorized=True,
-                                     updating="deferred", init="sobol")
-        design = lo + width * qmc.Sobol(prior.ndim, seed=rng).random(START_DESIGN)
-        starts = np.vstack([res.x, design[np.argsort(cost(design.T), kind="stable")[:START_ASCENTS]]])
-        return min(_ascend(target, inside(starts)), key=lambda e: e[1])[0]
+        return min(_ascend(target, _start_points(target, rng, config)), key=lambda e: e[1])[0]
     # a caller's start (a cable fit's own search, a population's): polished by scipy's forward differences, as
     # before the ascents. Polished by central differences it ends ~1e-4 away, and tests/test_population.py's
     # joint fit of population and units, which that moves onto another path, then stops at the step cap
     # (tau 345): a fit that converges on one path and not on another, kept as it was until its mixing is
     # looked at.
+    prior = target.prior
     z0 = prior.z_of(start)[0] if isinstance(start, dict) else np.asarray(start, float)
-    return _ascend(target, inside(z0)[None], central=False)[0][0]
+    return _ascend(target, _inside(prior, z0)[None], central=False)[0][0]
 
 
 def _laplace(target, z0) -> tuple:
