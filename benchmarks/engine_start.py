@@ -23,6 +23,7 @@ from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.diagnosis.fits import DiagnoseConfig, fit_jobs  # noqa: E402
 from sbcal.inference import sampler  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
+from sbcal.model.extensions import EXTENSIONS  # noqa: E402
 
 
 class Counted:
@@ -40,7 +41,8 @@ class Counted:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--damper", default="damper1")
-    ap.add_argument("--effects", nargs="+", default=["fixture_mass", "sensor_delay", "viscous_damping"])
+    ap.add_argument("--effects", nargs="+", default=["fixture_mass", "sensor_delay", "viscous_damping"],
+                    choices=[e for e, ext in EXTENSIONS.items() if not ext.joint])  # per-test models only
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     damper = resolve_damper(args.damper)
