@@ -147,3 +147,50 @@ def test_batch_names_a_missing_run_store(tmp_path, capsys):
     assert cli(["batch", "--runs", str(tmp_path / "nowhere")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.endswith("no such run store (sbcal run --runs DIR writes one)") and "\n" not in err
+
+
+
+def _cable_lot(lot, tmp_path):
+    """The lot with a cable fit (state dry) per unit, and a state wet of the first unit alone."""
+    from .test_batch_cable import _truths, _unit
+
+    runs = _copy(lot, tmp_path)
+    units = ["damper1-u01", "damper1-u02", "damper1-u03", "damper1-u04"]
+    source = json.loads((runs / units[0] / "0.5-0.5" / "theta1" / "summary.json").read_text())["config"]["damper_values"]["source"]
+    for k, (u, t) in enumerate(zip(units, _truths(4, seed=2))):
+        _unit(tmp_path, runs, u, t, seed=50 + k, n_draws=60, source=source)
+    shutil.copytree(runs / units[0] / "cable-dry", runs / units[0] / "cable-wet")
+    return runs, units
+
+
+def test_batch_refuses_a_cable_state_a_unit_lacks_before_writing(lot, tmp_path, capsys):
+    runs, _ = _cable_lot(lot, tmp_path)
+    out = tmp_path / "out"
+    assert _batch(runs, out, "--cable-states", "wet") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "damper1-u02/cable-wet: no cable fit of state 'wet'" in err[0], err
+    assert not out.exists()
+    assert _batch(runs, out, "--params", "EJ", "--cable-states", "none") == 0
+    assert (out / "summary.json").is_file() and not (out / "cable-dry").exists()
+
+
+@pytest.mark.slow
+def test_batch_pools_the_units_cable_law_into_the_designs_cable_run(lot, tmp_path, capsys):
+    """Units with a cable fit: their law pooled, the next unit stored as a cable run that predict reads; a
+    state one unit lacks is said and skipped."""
+    from sbcal.design.cable_run import load_cable_run
+
+    runs, units = _cable_lot(lot, tmp_path)
+    out = tmp_path / "out"
+    assert _batch(runs, out, "--params", "EJ") == 0
+    captured = capsys.readouterr()
+    assert "cable state wet not pooled: no cable fit of it for damper1-u02, damper1-u03, damper1-u04" in captured.err
+    line = next(x for x in captured.out.splitlines() if x.startswith("cable dry"))
+    assert line.startswith("cable dry (iwan5): 4 units: population EJ_min ")
+    run = load_cable_run(out / "cable-dry")
+    assert run.law == "iwan5" and run.summary["kind"] == "design" and run.summary["units"] == units
+    assert run.calibration.name == "damper1-design" and run.n_draws > 1000
+    csv = tmp_path / "p.csv"
+    assert main(["predict", "--cable", str(out / "cable-dry"), "--damper", "damper1", "--amplitude", "1",
+                 "--draws", "50", "-o", str(csv)]) == 0
+    assert len(pd.read_csv(csv)) > 0

@@ -22,6 +22,9 @@ def add_batch(sub):
                    help="parameters of the population (default EJ beta)")
     p.add_argument("--tests", nargs="+", metavar="LABEL", help="tests (default: every test all units have)")
     p.add_argument("--paramset", default="theta1", metavar="SET", help="parameter set of the stored runs (default theta1)")
+    p.add_argument("--cable-states", nargs="+", metavar="STATE",
+                   help="cable states whose strand-slip law to pool into the design's cable run (<output>/cable-<state>, "
+                        "for sbcal predict/span/design; default: every state all units have a cable fit of; none: skip)")
     p.add_argument("-o", "--output", metavar="DIR", help="where to write (default <runs>/batch)")
     p.add_argument("--seed", type=seed_value, default=0, metavar="SEED", help="random seed (default 0)")
     quiet_option(p)
@@ -38,6 +41,7 @@ def cmd_batch(args) -> int:
     doc, draws = fit_population(lot, seed=args.seed, progress=None if args.quiet else "population",
                                 departing=departures(args.runs, lot))
     doc["command"] = getattr(args, "command_line", "")
+    states = _cable_states(args, lot.units)
     out = args.output or batch_dir(args.runs)
     write_batch(out, doc, draws)
     print(headline(doc))
@@ -47,7 +51,46 @@ def cmd_batch(args) -> int:
         forest_figure(doc, f"{out}/forest.png")
         print(_table(doc))
     print(f"stored in {out}/ (summary.json, population.csv, units.csv, population.nc, forest.png)")
+    for cl in states:
+        _design_cable(args, cl, out)
     return 0
+
+
+def _cable_states(args, units) -> list:
+    """The cable lots to pool, read (and refused) before anything is written."""
+    from ..inference.batch_cable import cable_states, read_cable_lot
+
+    asked = args.cable_states
+    if asked and [s.lower() for s in asked] == ["none"]:
+        return []
+    common, partial = cable_states(args.runs, units)
+    if not asked:
+        for state, lacking in partial.items():
+            print(f"sbcal batch: cable state {state} not pooled: no cable fit of it for {', '.join(lacking)}",
+                  file=sys.stderr)
+    return [read_cable_lot(args.runs, units, s) for s in (asked or common)]
+
+
+def _design_cable(args, cl, out) -> None:
+    from ..inference.batch import headline
+    from ..inference.batch_cable import MIN_KEPT, design_cable, write_design_cable
+    from ..inference.store import design_cable_dir
+
+    for unit, why in cl.lot.excluded.items():
+        print(f"sbcal batch: unit {unit} left out of cable-{cl.state}: {why}", file=sys.stderr)
+    summary, next_unit, hyper = design_cable(cl, seed=args.seed, progress=None if args.quiet else f"cable-{cl.state}")
+    summary["command"] = getattr(args, "command_line", "")
+    where = write_design_cable(design_cable_dir(out, cl.state), summary, next_unit, hyper)
+    print(f"cable {cl.state} ({cl.law}): " + headline(summary["population"]))
+    if not summary["converged"]:
+        print(f"  {where}: the population did not converge: no design cable run to predict with")
+        return
+    if summary["kept_fraction"] < MIN_KEPT:
+        print(f"  warning: {100 * (1 - summary['kept_fraction']):.0f} % of the next unit's draws fell outside the "
+              "prior box or the law's domain and were dropped: the population reaches beyond what the units were "
+              "fitted under")
+    print(f"  the next unit of this design ({summary['n_draws']} draws) stored in {where}/: "
+          f"sbcal predict --cable {where} --damper NEW.toml; sbcal span --damper {where}")
 
 
 def _table(doc) -> str:

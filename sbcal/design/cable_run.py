@@ -186,9 +186,11 @@ def load_cable_run(run) -> CableRun:
 
 
 def is_calibration_damper(cable: CableRun, damper: Damper) -> bool:
-    """Whether ``damper`` is the run's calibration damper: the same name and the same geometry."""
+    """Whether ``damper`` is the run's calibration damper: the same name and the same geometry, and the
+    run's posterior holds its offsets ``a1``, ``a2`` (a lot's design run holds none: a damper of the design
+    takes its offsets from its tolerances, as a new damper does)."""
     c = cable.calibration
-    if c is None or c.name != damper.name:
+    if c is None or c.name != damper.name or not all(n in cable.draws for n in ("a1", "a2")):
         return False
     return all(np.isclose(getattr(c, k), getattr(damper, k), rtol=1e-12, atol=0.0) for k in GEOMETRY)
 

@@ -204,14 +204,19 @@ def line_departures(curves: dict, units, tests, *, rate: float = DEPARTURE_RATE)
 
 def _unit_draws(lot: Lot, dims, rng: np.random.Generator) -> list[UnitDraws]:
     """Each unit's joint draws over ``dims`` (``(parameter, test)``): its tests' independent posteriors paired
-    at random (a draw of their product)."""
+    at random (a draw of their product), each test's parameters kept together (one stored draw of a test
+    gives all of its parameters: their correlation is the unit's, e.g. a cable law's rigidity against its
+    slip scale)."""
     out = []
     for u in lot.units:
         n = min(min(v.size for v in lot.draws[u].values()), MAX_DRAWS)
+        rows = {}
         cols, logp = [], np.zeros(n)
         for p, t in dims:
             v = lot.draws[u][(p, t)]
-            x, lp = to_population_coordinates(v[rng.permutation(v.size)[:n]], lot.boxes[p])
+            if t not in rows:
+                rows[t] = rng.permutation(v.size)[:n]
+            x, lp = to_population_coordinates(v[rows[t]], lot.boxes[p])
             cols.append(x)
             logp += lp
         out.append(UnitDraws(u, np.stack(cols, axis=1), logp))
@@ -232,8 +237,13 @@ def _q(v) -> list:
 
 
 def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig(), progress: str | None = None,
-                   n_summary: int = 400, departing: dict | None = None) -> tuple[dict, dict]:
+                   n_summary: int = 400, departing: dict | None = None, stream: tuple = (),
+                   next_per_draw: int = 1) -> tuple[dict, dict]:
     """Fit the population of a lot.
+
+    ``stream``: more of the job's name under ``seed`` (:func:`~sbcal.core.seeds.job_seed`), so two populations
+    of one store (the per-test parameters, a cable state's law) draw independent random numbers.
+    ``next_per_draw``: next units drawn per hyper-posterior draw kept (``n_summary`` of them).
 
     Returns
     -------
@@ -243,7 +253,7 @@ def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig
         Hyper-parameter draws by name ``(n_chains, n_draws)`` and the next unit's draws per dimension
         (natural units, ``(n_summary,)``), for :func:`write_batch`.
     """
-    s_pair, s_sample, s_after = job_seed(seed, "batch").spawn(3)
+    s_pair, s_sample, s_after = job_seed(seed, "batch", *stream).spawn(3)
     blocks = tuple((p, lot.tests) for p in lot.params)
     units = _unit_draws(lot, [(p, t) for p, tests in blocks for t in tests], np.random.default_rng(s_pair))
     model = PopulationModel(blocks=blocks, hyper=HyperPrior(mean_box=_mean_box(units)))
@@ -261,7 +271,7 @@ def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig
     p_out, p_block = outlier_probabilities(target, sub)
     ess = unit_ess(target, sub)
     shrunk = shrunk_draws(target, sub, rng)
-    nxt = predictive_draws(model, sub, rng)
+    nxt = np.concatenate([predictive_draws(model, sub, rng) for _ in range(next_per_draw)])
 
     population = []
     for i, (p, t) in enumerate(model.dims):
@@ -302,7 +312,7 @@ def fit_population(lot: Lot, *, seed: int, config: SamplerConfig = SamplerConfig
                   "min_ess": MIN_ESS, "draws_per_unit": int(target.x.shape[1])},
         "boxes": {p: list(b) for p, b in lot.boxes.items()},
         "design": lot.design,
-        "seed": int(seed), "seed_key": seed_key("batch"), "versions": versions(),
+        "seed": int(seed), "seed_key": seed_key("batch", *stream), "versions": versions(),
         "sampler": asdict(config), **result.convergence_dict(),
         "wall_s": float(result.wall_s),
     }

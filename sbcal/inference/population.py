@@ -250,6 +250,10 @@ class _BlockFeatures:
     def log_normal(self, mean, cov) -> np.ndarray:
         """``log N(x; mean, cov + kernel_u)`` for ``mean (n, T)``, ``cov (n, T, T)`` -> ``(n, U, S)``."""
         full = cov[:, None] + self.kernel[None]                           # (n, U, T, T)
+        if full.shape[-1] == 1:  # one dimension (a cable law's parameter, a one-test lot): no matrices
+            v = full[..., 0, 0][:, :, None]                               # (n, U, 1)
+            d = self.lin[None, :, :, 0] - (mean - self.centre)[:, None, :]  # (n, U, S)
+            return -0.5 * (d * d / v + np.log(v) + _LOG_2PI)
         chol = np.linalg.cholesky(full)
         prec = np.linalg.inv(full)
         m = mean - self.centre                                            # (n, T)

@@ -11,6 +11,7 @@
     <runs>/span/<label>/                                       span studies
     <runs>/design/<label>/                                     design searches (sbcal design)
     <runs>/batch/                                              the lot as a population (sbcal batch)
+    <runs>/batch/cable-<state>/                                the design's cable run (the next unit's law)
     <runs>/compare/<before>-vs-<after>/                        a change of characteristic (sbcal compare)
     <runs>/compare/calibrations/<file>/                        a bench file compare calibrated (a run store)
 
@@ -26,7 +27,7 @@ from pathlib import Path
 
 __all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "run_dirs", "point_fit_path", "data_path",
            "diagnose_path", "map_path", "cable_dir", "cable_dirs", "cable_state_of", "owner", "prediction_dir", "span_dir",
-           "span_dirs", "design_dir", "design_dirs", "batch_dir", "compare_dir", "compare_dirs", "compare_calibration_store"]
+           "span_dirs", "design_dir", "design_dirs", "batch_dir", "design_cable_dir", "compare_dir", "compare_dirs", "compare_calibration_store"]
 
 SUMMARY = "summary.json"
 POSTERIOR = "posterior.nc"
@@ -137,6 +138,12 @@ def design_dirs(runs) -> list[Path]:
 def batch_dir(runs) -> Path:
     """``<runs>/batch``: the lot's population (:mod:`sbcal.inference.batch`)."""
     return Path(runs) / _BATCH
+
+
+def design_cable_dir(batch, state: str) -> Path:
+    """``<batch>/cable-<state>``: the design's cable run of a lot (the next unit's law; a cable run that
+    ``sbcal predict`` and ``sbcal span`` read), ``batch`` the population's directory (:func:`batch_dir`)."""
+    return Path(batch) / f"{_CABLE}{state}"
 
 
 def compare_dir(runs, label: str) -> Path:
