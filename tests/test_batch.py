@@ -181,8 +181,8 @@ def test_batch_pools_the_units_cable_law_into_the_designs_cable_run(lot, tmp_pat
     from sbcal.design.cable_run import load_cable_run
 
     runs, units = _cable_lot(lot, tmp_path)
-    out = tmp_path / "out"
-    assert _batch(runs, out, "--params", "EJ") == 0
+    out = runs / "batch"                                  # the default, where the report looks
+    assert main(["batch", "--runs", str(runs), "--quiet", "--seed", "1", "--params", "EJ"]) == 0
     captured = capsys.readouterr()
     assert "cable state wet not pooled: no cable fit of it for damper1-u02, damper1-u03, damper1-u04" in captured.err
     line = next(x for x in captured.out.splitlines() if x.startswith("cable dry"))
@@ -194,3 +194,8 @@ def test_batch_pools_the_units_cable_law_into_the_designs_cable_run(lot, tmp_pat
     assert main(["predict", "--cable", str(out / "cable-dry"), "--damper", "damper1", "--amplitude", "1",
                  "--draws", "50", "-o", str(csv)]) == 0
     assert len(pd.read_csv(csv)) > 0
+    # the report reads both stored populations
+    assert main(["report", "--runs", str(runs), "-o", str(tmp_path / "report"), "--quiet"]) == 0
+    page = (tmp_path / "report" / "index.html").read_text()
+    assert "The lot as a population" in page and "The design's cable law: dry (iwan5)" in page
+    assert str(out / "cable-dry") in page

@@ -27,7 +27,7 @@ from pathlib import Path
 
 __all__ = ["SUMMARY", "POSTERIOR", "dampers", "damper_dir", "run_dir", "run_dirs", "point_fit_path", "data_path",
            "diagnose_path", "map_path", "cable_dir", "cable_dirs", "cable_state_of", "owner", "prediction_dir", "span_dir",
-           "span_dirs", "design_dir", "design_dirs", "batch_dir", "design_cable_dir", "compare_dir", "compare_dirs", "compare_calibration_store"]
+           "span_dirs", "design_dir", "design_dirs", "batch_dir", "design_cable_dir", "design_cable_dirs", "compare_dir", "compare_dirs", "compare_calibration_store"]
 
 SUMMARY = "summary.json"
 POSTERIOR = "posterior.nc"
@@ -144,6 +144,11 @@ def design_cable_dir(batch, state: str) -> Path:
     """``<batch>/cable-<state>``: the design's cable run of a lot (the next unit's law; a cable run that
     ``sbcal predict`` and ``sbcal span`` read), ``batch`` the population's directory (:func:`batch_dir`)."""
     return Path(batch) / f"{_CABLE}{state}"
+
+
+def design_cable_dirs(batch) -> list[tuple[str, Path]]:
+    """``[(state, directory)]`` of a lot's finished design cable runs (:func:`design_cable_dir`), by state."""
+    return [(cable_state_of(d), d) for d in sorted(Path(batch).glob(f"{_CABLE}*")) if (d / SUMMARY).is_file()]
 
 
 def compare_dir(runs, label: str) -> Path:

@@ -487,7 +487,10 @@ def build_report(runs_dir="runs", out_dir="report", *, paramset: str = "theta1",
     from ..inference.batch import read_batch
     from .lot import lot_section
 
-    lot = lot_section(read_batch(runs), figs)
+    from ..inference.runs import read_summary
+    from ..inference.store import batch_dir, design_cable_dirs
+
+    lot = lot_section(read_batch(runs), figs, [(d, read_summary(d)) for _, d in design_cable_dirs(batch_dir(runs))])
     from .compare import compare_section
 
     comparisons = compare_section(runs, figs)

@@ -38,14 +38,16 @@ def forest_figure(doc: dict, path) -> Path:
     return save_png(fig, path, dpi=90)
 
 
-def lot_section(doc: dict | None, figs: Path) -> dict | None:
-    """What the page shows of a stored lot (None when the store has none)."""
+def lot_section(doc: dict | None, figs: Path, cables=()) -> dict | None:
+    """What the page shows of a stored lot (None when the store has none); ``cables``: ``(directory,
+    summary)`` of its design cable runs (:mod:`sbcal.inference.batch_cable`)."""
     if doc is None:
         return None
     from ..inference.batch import headline
 
     out = {"headline": headline(doc), "converged": doc["converged"], "n_units": doc["n_units"],
-           "members": doc["members"], "model": doc["model"], "figure": None, "rows": [], "units": []}
+           "members": doc["members"], "model": doc["model"], "figure": None, "rows": [], "units": [],
+           "cables": [_cable_rows(d, s) for d, s in cables]}
     if not doc["converged"]:
         return out
     out["figure"] = forest_figure(doc, figs / "lot_forest.png").name
@@ -56,3 +58,14 @@ def lot_section(doc: dict | None, figs: Path) -> dict | None:
         out["units"].append({"unit": u["unit"], "p": u["outlier_probability"], "ess": u["ess_median"],
                              "flagged": u["flagged"], "outlier": u["outlier_probability"] >= 0.5})
     return out
+
+
+def _cable_rows(directory, summary: dict) -> dict:
+    """A design cable run as the page shows it: its headline, the population per parameter, where it is."""
+    from ..inference.batch import headline
+
+    pop = summary["population"]
+    return {"state": summary["state"], "law": summary["law"], "path": str(directory), "converged": summary["converged"],
+            "headline": headline(pop), "kept": summary.get("kept_fraction"), "n_draws": summary.get("n_draws"),
+            "rows": [{"dim": r["parameter"], "median_unit": r["median_unit"], "scatter": r["scatter_percent"],
+                      "next_unit": r["next_unit"]} for r in pop["population"]] if pop["converged"] else []}
