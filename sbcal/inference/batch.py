@@ -33,7 +33,7 @@ from .store import POSTERIOR, SUMMARY, batch_dir, run_dir
 from .store import dampers as stored_dampers
 
 
-__all__ = ["DEFAULT_PARAMS", "Lot", "read_lot", "fit_population", "departures", "line_departures", "write_batch", "read_batch",
+__all__ = ["DEFAULT_PARAMS", "Lot", "read_lot", "admit", "fit_population", "departures", "line_departures", "write_batch", "read_batch",
            "headline", "OUTLIER_LINE", "DEPARTURE_RATE"]
 
 DEFAULT_PARAMS = ("EJ", "beta")
@@ -48,7 +48,8 @@ DEPARTURE_RATE = 0.001
 predictive interval of this two-sided tail probability (Student t with n - 2 degrees of freedom: for a unit
 like the others, one line in a thousand by chance)."""
 
-_DESIGN_EXEMPT = ("name", "source", "description", "tolerance")
+DESIGN_EXEMPT = ("name", "source", "description", "tolerance")
+"""Damper fields that may differ between units of one design."""
 _UNITS = {"EJ": "N m^2"}
 _QUANT = (0.05, 0.5, 0.95)
 
@@ -90,7 +91,7 @@ def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset:
         raise InputError(f"{runs}: no such run store (sbcal run --runs DIR writes one)")
     names = list(dampers) if dampers else stored_dampers(runs)
     params = tuple(dict.fromkeys(params))
-    stored, design, design_of, boxes, excluded = {}, None, None, {}, {}
+    stored, excluded, seen = {}, {}, {"design": None, "design_of": None, "boxes": {}}
     for unit in names:
         found = list(posterior_draws(runs, unit, paramset, params))
         if not found:
@@ -107,22 +108,12 @@ def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset:
                                  f"(stored: {', '.join(t.summary['parameters'])})")
             try:
                 cfg = t.summary["config"]
-                values = {k: v for k, v in cfg["damper_values"].items() if k not in _DESIGN_EXEMPT}
+                values = {k: v for k, v in cfg["damper_values"].items() if k not in DESIGN_EXEMPT}
                 priors = {p: cfg["prior"]["parameters"][p] for p in params}
             except (KeyError, TypeError, AttributeError) as e:
                 raise InputError(f"{runs}/{unit}/{t.test}/{paramset}/{SUMMARY}: key {e}: missing or malformed "
                                  "(not a run written by sbcal sample)") from None
-            if design is None:
-                design, design_of = values, unit
-            for key in sorted(set(design) | set(values)):
-                if design.get(key) != values.get(key):
-                    raise InputError(f"{runs}/{unit}: damper field {key!r} is {values.get(key)!r}, unit "
-                                     f"{design_of!r} has {design.get(key)!r}: units of different designs")
-            for p, box in priors.items():
-                b = (box["dist"] == "loguniform", float(box["lower"]), float(box["upper"]))
-                if boxes.setdefault(p, b) != b:
-                    raise InputError(f"{runs}/{unit}/{t.test}/{paramset}: prior of {p!r} is {b[1]:g}..{b[2]:g}, "
-                                     f"other units' {boxes[p][1]:g}..{boxes[p][2]:g}: sample the lot under one prior")
+            admit(seen, unit, values, priors, design_where=f"{runs}/{unit}", prior_where=f"{runs}/{unit}/{t.test}/{paramset}")
         stored[unit] = {t.test: t for t in found}
     units = tuple(stored)
     if len(units) < 3:
@@ -143,8 +134,42 @@ def read_lot(runs, *, dampers=None, params=DEFAULT_PARAMS, tests=None, paramset:
     amp = {t: stored[units[0]][t].amplitude for t in chosen}
     chosen = tuple(sorted(chosen, key=lambda t: (amp[t] is None, amp[t] or 0.0, t)))
     draws = {u: {(p, t): stored[u][t].draws[p] for p in params for t in chosen} for u in units}
-    return Lot(units=units, tests=chosen, params=params, boxes=boxes, draws=draws, design=design,
+    return Lot(units=units, tests=chosen, params=params, boxes=seen["boxes"], draws=draws, design=seen["design"],
                excluded=excluded, paramset=paramset)
+
+
+def admit(seen: dict, unit: str, values: dict, priors: dict, *, design_where: str, prior_where: str) -> None:
+    """Check one stored result of a unit against the lot read so far, and record it.
+
+    Parameters
+    ----------
+    seen : dict
+        ``{"design": values or None, "design_of": unit, "boxes": {parameter: (log_scale, lower, upper)}}``,
+        updated in place.
+    values : dict
+        The unit's damper values, the exempt fields (name, source, description, tolerance) left out.
+    priors : dict
+        Parameter -> its stored prior box (``{"dist", "lower", "upper"}``).
+
+    Raises
+    ------
+    InputError
+        One line: a damper field differs from the first unit's (units of different designs), or a prior
+        box differs from the other units'.
+    """
+    if seen["design"] is None:
+        seen["design"], seen["design_of"] = values, unit
+    design = seen["design"]
+    for key in sorted(set(design) | set(values)):
+        if design.get(key) != values.get(key):
+            raise InputError(f"{design_where}: damper field {key!r} is {values.get(key)!r}, unit "
+                             f"{seen['design_of']!r} has {design.get(key)!r}: units of different designs")
+    boxes = seen["boxes"]
+    for p, box in priors.items():
+        b = (box["dist"] == "loguniform", float(box["lower"]), float(box["upper"]))
+        if boxes.setdefault(p, b) != b:
+            raise InputError(f"{prior_where}: prior of {p!r} is {b[1]:g}..{b[2]:g}, other units' "
+                             f"{boxes[p][1]:g}..{boxes[p][2]:g}: fit the lot under one prior")
 
 
 def departures(runs, lot: Lot, *, rate: float = DEPARTURE_RATE) -> dict:

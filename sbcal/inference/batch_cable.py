@@ -30,7 +30,7 @@ import numpy as np
 
 from ..core._io import write_json
 from ..core.errors import InputError
-from .batch import _DESIGN_EXEMPT, Lot, fit_population
+from .batch import DESIGN_EXEMPT, Lot, admit, fit_population
 from .store import POSTERIOR, SUMMARY, cable_dir, cable_dirs
 
 
@@ -78,20 +78,13 @@ def read_cable_lot(runs, units, state: str) -> CableLot:
     from ..model.laws import law_for
     from .cable_fit import read_cable
 
-    draws, summaries, boxes, excluded = {}, {}, {}, {}
-    law = design = design_of = names = None
+    draws, summaries, excluded, seen = {}, {}, {}, {"design": None, "design_of": None, "boxes": {}}
+    law = names = None
     for u in units:
         d = cable_dir(runs, u, state)
         if not (d / SUMMARY).is_file():
             raise InputError(f"{d}: no cable fit of state {state!r} for unit {u!r} ('sbcal cable --damper {u}' makes one)")
-        if not (d / POSTERIOR).is_file():
-            raise InputError(f"{d}: {POSTERIOR} is missing")
-        try:
-            s, post = read_cable(d)
-        except (OSError, ValueError, KeyError) as e:
-            if isinstance(e, InputError):
-                raise
-            raise InputError(f"{d}: cannot read the cable posterior ({e})") from None
+        s, post = read_cable(d)
         if law is None:
             law, first = s["law"], u
             names = ("EJ_min", "beta_material", *law_for(law).parameter_names)
@@ -102,21 +95,11 @@ def read_cable_lot(runs, units, state: str) -> CableLot:
             excluded[u] = f"cable-{state} posterior did not converge"
             continue
         try:
-            values = {k: v for k, v in s["damper_values"].items() if k not in _DESIGN_EXEMPT}
+            values = {k: v for k, v in s["damper_values"].items() if k not in DESIGN_EXEMPT}
             priors = {p: s["prior"]["parameters"][p] for p in names}
         except (KeyError, TypeError, AttributeError) as e:
             raise InputError(f"{d}/{SUMMARY}: key {e}: missing or malformed (not a run written by sbcal cable)") from None
-        if design is None:
-            design, design_of = values, u
-        for key in sorted(set(design) | set(values)):
-            if design.get(key) != values.get(key):
-                raise InputError(f"{d}: damper field {key!r} is {values.get(key)!r}, unit {design_of!r} has "
-                                 f"{design.get(key)!r}: units of different designs")
-        for p, box in priors.items():
-            b = (box["dist"] == "loguniform", float(box["lower"]), float(box["upper"]))
-            if boxes.setdefault(p, b) != b:
-                raise InputError(f"{d}/{SUMMARY}: prior of {p!r} is {b[1]:g}..{b[2]:g}, other units' "
-                                 f"{boxes[p][1]:g}..{boxes[p][2]:g}: fit the lot's cables under one prior")
+        admit(seen, u, values, priors, design_where=str(d), prior_where=f"{d}/{SUMMARY}")
         missing = [p for p in names if p not in post]
         if missing:
             raise InputError(f"{d}/{POSTERIOR}: no draws of {missing[0]!r} (the {law} law needs {', '.join(names)})")
@@ -127,8 +110,8 @@ def read_cable_lot(runs, units, state: str) -> CableLot:
         why = "".join(f"; {u} left out: {r}" for u, r in excluded.items())
         raise InputError(f"{runs}: {len(kept)} unit(s) with a converged cable-{state} fit "
                          f"({', '.join(kept) or 'none'}); a population needs at least 3{why}")
-    lot = Lot(units=kept, tests=("",), params=names, boxes=boxes, draws=draws, design=design, excluded=excluded,
-              paramset=f"cable-{state}")
+    lot = Lot(units=kept, tests=("",), params=names, boxes=seen["boxes"], draws=draws, design=seen["design"],
+              excluded=excluded, paramset=f"cable-{state}")
     return CableLot(state=state, law=law, lot=lot, summaries=summaries)
 
 

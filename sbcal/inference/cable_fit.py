@@ -507,11 +507,16 @@ def read_cable(directory) -> tuple[dict, dict]:
     from .runs import read_summary
     from .stats import read_netcdf
 
+    if (Path(directory) / "summary.json").is_file() and not (Path(directory) / "posterior.nc").is_file():
+        raise InputError(f"{directory}: posterior.nc is missing")
     s = read_summary(directory)
     if s is None or "law" not in s:
         raise InputError(f"{directory}: no cable-law run here (summary.json missing or not a cable fit; "
                          "'sbcal cable' or 'sbcal run' writes one)")
-    post = read_netcdf(Path(directory) / "posterior.nc").posterior
+    try:
+        post = read_netcdf(Path(directory) / "posterior.nc").posterior
+    except (OSError, ValueError, KeyError) as e:
+        raise InputError(f"{directory}: cannot read the cable posterior ({e})") from None
     return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
 
 
