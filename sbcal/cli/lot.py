@@ -83,7 +83,7 @@ def _design_cable(args, cl, out) -> None:
     where = write_design_cable(design_cable_dir(out, cl.state), summary, next_unit, hyper)
     print(f"cable {cl.state} ({cl.law}): " + headline(summary["population"]))
     if not summary["converged"]:
-        print(f"  {where}: the population did not converge: no design cable run to predict with")
+        print(f"  {where}: stored for inspection only: the population did not converge (predict and span warn on it)")
         return
     if summary["kept_fraction"] < MIN_KEPT:
         print(f"  warning: {100 * (1 - summary['kept_fraction']):.0f} % of the next unit's draws fell outside the "

@@ -90,7 +90,7 @@ def read_cable_lot(runs, units, state: str) -> CableLot:
             names = ("EJ_min", "beta_material", *law_for(law).parameter_names)
         elif s["law"] != law:
             raise InputError(f"{d}/{SUMMARY}: law {s['law']!r}, unit {first!r} has {law!r}: a population pools one "
-                             "law (fit every unit's state with one, 'sbcal cable --laws LAW')")
+                             "law (fit every unit's state with one: sbcal cable --law LAW)")
         if not s.get("converged", False):
             excluded[u] = f"cable-{state} posterior did not converge"
             continue
