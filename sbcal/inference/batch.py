@@ -26,9 +26,9 @@ from ..core.seeds import job_seed, seed_key
 from .population import (MIN_ESS, OUTLIER_SCALE, HyperPrior, PopulationModel, PopulationTarget, UnitDraws,
                          from_population_coordinates, outlier_probabilities, predictive_draws, shrunk_draws,
                          to_population_coordinates, unit_ess)
-from .runs import posterior_draws, read_summary, versions
+from .runs import posterior_draws, read_summary, versions, write_inference_data
 from .sampler import SamplerConfig, sample
-from .stats import inference_data, read_netcdf
+from .stats import read_netcdf
 from .store import POSTERIOR, SUMMARY, batch_dir, run_dir
 from .store import dampers as stored_dampers
 
@@ -351,9 +351,7 @@ def write_batch(out, doc: dict, draws: dict) -> None:
     from pathlib import Path
 
     out = Path(out)
-    idata = inference_data(posterior={k: np.asarray(v) for k, v in draws["hyper"].items()})
-    with atomic_path(out / "population.nc", ".nc") as tmp:
-        idata.to_netcdf(str(tmp))
+    write_inference_data(out / "population.nc", {"posterior": {k: np.asarray(v) for k, v in draws["hyper"].items()}})
     rows = [{"parameter": r["parameter"], "test": r["test"], "unit": r["unit"],
              **{f"median_unit_{k}": v for k, v in zip(("q05", "q50", "q95"), r["median_unit"])},
              **{f"scatter_percent_{k}": v for k, v in zip(("q05", "q50", "q95"), r["scatter_percent"])},

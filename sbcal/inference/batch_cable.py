@@ -34,11 +34,11 @@ from .batch import DESIGN_EXEMPT, Lot, admit, fit_population
 from .store import POSTERIOR, SUMMARY, cable_dir, cable_dirs
 
 
-__all__ = ["CableLot", "cable_states", "read_cable_lot", "design_cable", "write_design_cable", "NEXT_UNIT_DRAWS"]
+__all__ = ["CableLot", "cable_states", "read_cable_lot", "design_cable", "write_design_cable", "NEXT_PER_DRAW"]
 
-NEXT_UNIT_DRAWS = 1200
-"""Next units drawn for the design's cable run (before the box and domain): three per hyper-posterior draw
-of the 400 the population's summary keeps."""
+NEXT_PER_DRAW = 3
+"""Next units drawn for the design's cable run per hyper-posterior draw the population's summary keeps
+(before the box and domain: 1 200 of its 400)."""
 
 MIN_KEPT = 0.5
 """Below this share of next-unit draws inside the prior box and the law's domain the design's run is
@@ -178,7 +178,7 @@ def design_cable(cl: CableLot, *, seed: int, progress: str | None = None) -> tup
     """
     lot = cl.lot
     doc, draws = fit_population(lot, seed=seed, progress=progress, stream=("cable", cl.state),
-                                next_per_draw=NEXT_UNIT_DRAWS // 400)
+                                next_per_draw=NEXT_PER_DRAW)
     values = {p: np.asarray(draws["next_unit"][p], float) for p in lot.params}
     ok = _inside(cl.law, lot.params, lot.boxes, values)
     next_unit = {p: v[ok] for p, v in values.items()}
