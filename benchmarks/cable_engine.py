@@ -95,8 +95,10 @@ def posterior(name: str, seed: int):
     raise SystemExit(f"unknown posterior {name!r}")
 
 
-def run_emcee(like, seed, steps, workers, bend=True) -> dict:
+def run_emcee(like, seed, steps, workers, bend=True, screen=None) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
+    if screen is not None:
+        cfg = replace(cfg, screen=screen)
     if not bend:
         cfg = replace(cfg, bend=0, burn_fraction=SamplerConfig.burn_fraction)
     t0 = time.perf_counter()
@@ -107,7 +109,8 @@ def run_emcee(like, seed, steps, workers, bend=True) -> dict:
     flat = res.flat()
     return {"wall_s": wall, "converged": res.converged, "r_hat_max": c["r_hat_max"], "ess_min": worst_ess,
             "tau_max": c["tau_max"], "steps": res.n_steps, "ess_per_min": worst_ess / (wall / 60),
-            "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200],
+            "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200], "calls": res.calls,
+            "calls_per_step": res.calls / res.n_steps,
             "mean": {k: float(np.mean(v)) for k, v in flat.items()}}
 
 
@@ -140,7 +143,7 @@ def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "matrix"])
-    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "nautilus"])
+    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=4100)
@@ -156,10 +159,11 @@ def main(argv=None) -> int:
                 print(f"  nautilus: {r['wall_s']:.0f} s, {r['calls']} evaluations, n_eff {r['n_eff']:.0f}, "
                       f"{r['ess_per_min']:.1f} ESS/min, log Z {r['log_z']:.1f}")
             else:
-                r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine == "emcee")
+                r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
+                              screen={"emcee-screen": True, "emcee-plain": False}.get(engine))
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
-                      f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}")
+                      f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step")
             for k, v in truth.items():
                 if k in r["mean"]:
                     print(f"    {k:22s} mean {r['mean'][k]:.4g}  truth {v:.4g}")

@@ -65,10 +65,12 @@ def cable_config(ndim: int, *, workers: int = 2, max_steps: int = 8000, max_draw
     fit within minutes: the cable model costs ~1 ms per parameter set). The independence proposal bends
     along up to six of the posterior's widest directions (a one-test state's law is a thin curved ridge),
     and the first half of every chain is burn-in: the early rounds' proposals, fitted before the chain
-    reached the ridge's tails, read them short when a fifth is discarded (``docs/calibration.md``)."""
+    reached the ridge's tails, read them short when a fifth is discarded (``docs/calibration.md``). Where a
+    quadratic of the log-density predicts the kept steps, proposals are screened by it before the model is
+    called (:mod:`sbcal.inference.surrogate`; a multi-test state's law: half the calls)."""
     return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps, max_draws=max_draws, first_steps=300,
                          de_population=4 * ndim + 8, de_generations=60, workers=workers, bend=6,
-                         burn_fraction=0.5)
+                         burn_fraction=0.5, screen=True)
 
 
 @dataclass(frozen=True)

@@ -79,11 +79,16 @@ class MapProposal:
         v[:, self.bent:] += bend_features(v[:, :self.bent]) @ self.coef if self.bent else self.coef[0]
         return self.mean + v @ self._made[0]
 
-    def log_density(self, x) -> np.ndarray:
-        """Up to a constant of ``W`` and the dimension (so proposals of one whitening compare)."""
+    def mapped(self, x) -> np.ndarray:
+        """The bent whitened coordinates ``(d, r - C f(d))`` of points ``x (n, ndim)``: where the posterior is
+        near the t's ellipsoid (the surrogate of :mod:`sbcal.inference.surrogate` is a quadratic in them)."""
         v = (np.atleast_2d(x) - self.mean) @ self.whiten.T
         v[:, self.bent:] -= bend_features(v[:, :self.bent]) @ self.coef if self.bent else self.coef[0]
-        y = v @ self._made[1].T
+        return v
+
+    def log_density(self, x) -> np.ndarray:
+        """Up to a constant of ``W`` and the dimension (so proposals of one whitening compare)."""
+        y = self.mapped(x) @ self._made[1].T
         return self._made[2] - 0.5 * (T_DOF + self.mean.size) * np.log1p(np.einsum("ij,ij->i", y, y) / T_DOF)
 
 

@@ -55,6 +55,7 @@ from scipy.stats import qmc
 from ..core.progress import progress_bar
 from ..core.workers import default_workers, one_blas_thread, process_pool
 from .proposal import MapProposal, fit_proposal
+from .surrogate import fit_surrogate
 from .stats import convergence
 
 
@@ -105,6 +106,11 @@ class SamplerConfig:
         the default, proposes from the multivariate t alone. A cable state's fit bends (a weakly determined
         law is a thin curved ridge); a test's few parameters do not (measured: a bound-hugging damping
         parameter's autocorrelation grew 3x with the bend).
+    screen : bool
+        From the second round on, judge each proposal first by a quadratic of the log-density fitted to the
+        ensemble's kept steps, and call the target only on those that pass (delayed acceptance,
+        :mod:`sbcal.inference.surrogate`: exact whatever the quadratic; per ensemble and round, used only
+        where it predicts held-out steps). For targets whose call costs milliseconds per set (a cable state).
     """
 
     nwalkers: int = 24
@@ -120,6 +126,7 @@ class SamplerConfig:
     workers: int = field(default_factory=default_workers)
     independence: float = 0.5
     bend: int = 0
+    screen: bool = False
 
     def __post_init__(self):
         if self.n_ensembles < POLICY["min_ensembles"]:
@@ -169,6 +176,9 @@ class SampleResult:
         Where the ensembles started (the polished mode).
     wall_s : float
     config : SamplerConfig
+    calls : int
+        Parameter sets the target was called on by the ensembles' moves (the start's and the stored
+        draws' pointwise log-likelihood not counted): with ``config.screen``, fewer than the proposals.
     """
 
     names: tuple
@@ -188,6 +198,7 @@ class SampleResult:
     start: dict
     wall_s: float
     config: SamplerConfig
+    calls: int = 0
 
     @property
     def n_chains(self) -> int:
@@ -437,14 +448,21 @@ class _Ensembles(emcee.moves.Move):
       not (curved beyond the proposal's quadratic bend, several modes), it is mostly rejected and
       differential evolution does the work.
 
+    Where the ensemble has a screen (:mod:`sbcal.inference.surrogate`), a proposal is first accepted or
+    rejected on the screen's ratio and the target is called only on those that pass, accepted by the
+    corrected ratio (delayed acceptance).
+
     An ensemble never sees another's walkers and draws every random number from its own generator, so
     the ensembles are independent, independently seeded chains: the same as running them one by one,
     in any grouping over processes.
     """
 
-    def __init__(self, n_walkers: int, generators, proposals=None, independence: float = 0.0, box=(None, None)):
+    def __init__(self, n_walkers: int, generators, proposals=None, independence: float = 0.0, box=(None, None),
+                 screens=None):
         self.n_walkers, self.generators = n_walkers, list(generators)
         self.proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
+        self.screens = list(screens) if screens is not None else [None] * len(self.generators)
+        self.calls = 0  # parameter sets the target was called on
         self.independence = independence
         self.box = box  # the prior box (lower, upper) in the sampled coordinates: where a draw is worth proposing
 
@@ -455,7 +473,7 @@ class _Ensembles(emcee.moves.Move):
         accepted = np.zeros(len(coords), dtype=bool)
         for h in (0, 1):
             moving, proposals, log_u = [], [], []
-            for perm, rng, tp in zip(halves, self.generators, self.proposals):
+            for perm, rng, tp, sg in zip(halves, self.generators, self.proposals, self.screens):
                 s, c = (perm[: w // 2], perm[w // 2:]) if h == 0 else (perm[w // 2:], perm[: w // 2])
                 a = rng.integers(len(c), size=len(s))
                 b = (a + rng.integers(1, len(c), size=len(s))) % len(c)  # a pair of distinct walkers
@@ -469,11 +487,20 @@ class _Ensembles(emcee.moves.Move):
                     # independence moves alone)
                     ld = tp.log_density(np.concatenate([coords[s[indep]], q[indep]]))
                     lu[indep] -= ld[:indep.size] - ld[indep.size:]
-                proposals.append(q)
-                log_u.append(lu)
-                moving.append(s)
+                go = np.ones(len(s), bool)
+                if sg is not None:  # stage 1 on the screen; stage 2's threshold carries its ratio
+                    ds = sg(np.concatenate([q, coords[s]]))
+                    ds = ds[:len(s)] - ds[len(s):]
+                    go = ds > lu
+                    lu = np.log(rng.random(len(s))) + np.where(go, ds, 0.0)
+                proposals.append(q[go])
+                log_u.append(lu[go])
+                moving.append(s[go])
             idx, q, log_u = np.concatenate(moving), np.concatenate(proposals), np.concatenate(log_u)
+            if not len(idx):
+                continue
             new_lp, _ = model.compute_log_prob_fn(q)
+            self.calls += len(idx)
             ok = new_lp - state.log_prob[idx] > log_u
             coords[idx[ok]], state.log_prob[idx[ok]] = q[ok], new_lp[ok]
             accepted[idx[ok]] = True
@@ -484,10 +511,10 @@ def _advance(job):
     """Run some ensembles (side by side) ``steps`` further; module-level so a process can run it.
 
     ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), proposals (G,),
-    independence, steps)``; returns the chain, the log-probabilities, the final coords/log-probs, the
-    generators' states and the acceptance counts per walker.
+    independence, steps, screens (G,))``; returns the chain, the log-probabilities, the final coords/log-probs,
+    the generators' states, the acceptance counts per walker and the parameter sets the target was called on.
     """
-    target, coords, log_prob, gen_states, proposals, independence, steps = job
+    target, coords, log_prob, gen_states, proposals, independence, steps, screens = job
     generators = []
     for st in gen_states:
         g = np.random.Generator(np.random.PCG64())
@@ -495,12 +522,12 @@ def _advance(job):
         generators.append(g)
     n, ndim = coords.shape
     move = _Ensembles(n // len(generators), generators, proposals, independence,
-                      (target.prior.z_lower, target.prior.z_upper))
+                      (target.prior.z_lower, target.prior.z_upper), screens)
     sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
     with one_blas_thread():
         state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
     return (sampler.get_chain(), sampler.get_log_prob(), state.coords, state.log_prob,
-            [g.bit_generator.state for g in generators], sampler.backend.accepted.copy())
+            [g.bit_generator.state for g in generators], sampler.backend.accepted.copy(), move.calls)
 
 
 def _tau(chain) -> tuple[np.ndarray, int]:
@@ -599,20 +626,24 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         # the first round's independence proposal: the Laplace approximation at the mode
         first = MapProposal.ellipsoid(z0, _capped_cov(prior, cov)) if full else None
         proposals = [first] * config.n_ensembles
+        screens = [None] * config.n_ensembles
+        calls = 0
         with process_pool(len(groups)) as pool:
             while True:
                 jobs = []
                 for grp in groups:
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
                     jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp],
-                                 [proposals[e] for e in grp], config.independence, block))
+                                 [proposals[e] for e in grp], config.independence, block,
+                                 [screens[e] for e in grp]))
                 pieces_c, pieces_l = [], []
-                for grp, (c, lp, cs, ls, gs, acc) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
+                for grp, (c, lp, cs, ls, gs, acc, k) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
                     coords[rows], log_prob[rows] = cs, ls
                     for e, st in zip(grp, gs):
                         gens[e] = st
                     accepted[rows] += acc
+                    calls += k
                     pieces_c.append(c)
                     pieces_l.append(lp)
                 chains.append(np.concatenate(pieces_c, axis=1))  # (steps, ensembles x walkers, ndim)
@@ -636,6 +667,10 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 block = min(max(more, n // 10, 50), n, config.max_steps - n)
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [fit_proposal(c[burn:], config.bend) for c in per]
+                if config.screen:
+                    box = (prior.z_lower, prior.z_upper)
+                    screens = [fit_surrogate(c[burn:], lp_e[burn:], box, tp)
+                               for c, lp_e, tp in zip(per, per_lp, proposals)]
     natural = prior.to_natural(x.reshape(-1, prior.ndim))
     params = {nm: natural[:, i] for i, nm in enumerate(names)}
     loglik = None
@@ -651,5 +686,5 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         n_steps=n, burn=burn, thin=thin, converged=bool(done),
         reason="" if done else f"stopped at the {config.max_steps}-step cap: {reason}",
         start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
-        wall_s=time.perf_counter() - t0, config=config,
+        wall_s=time.perf_counter() - t0, config=config, calls=int(calls),
     )
