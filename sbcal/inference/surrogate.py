@@ -54,7 +54,7 @@ class QuadraticSurrogate:
     lower, upper : ndarray, shape (ndim,), or None
         The prior box in the sampled coordinates.
     residual_sd : float
-        Held-out residual sd of the fit [nats] (reported; the fit is used only below ``MAX_RESIDUAL_SD``).
+        Held-out residual sd of the fit [nats] (kept for inspection; the fit is used only below ``MAX_RESIDUAL_SD``).
     mapping : MapProposal or None
     """
 
