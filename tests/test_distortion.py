@@ -156,7 +156,7 @@ def test_sbcal_cable_prints_the_largest_distortion(tmp_path, monkeypatch, capsys
     root = tmp_path
     fresh = _fit(root)  # its bench written to root/bench.csv, which the command reads
     monkeypatch.setattr(cable_fit, "fit_damper_cable",
-                        lambda *a, **k: ({LAW: {"dry": fresh}}, {"best": LAW, "families": {}}))
+                        lambda *a, **k: ({LAW: {"dry": fresh}}, {"best": LAW, "families": {}, "screened": {}}))
     from sbcal.inference import harmonic_refit  # the refit is tested in test_harmonic_refit.py: not here
     monkeypatch.setattr(harmonic_refit, "refit_harmonics", lambda fit, **k: None)
     assert main(["cable", "--damper", "damper1", "--bench", str(root / "bench.csv"), "--runs", str(root / "runs"),

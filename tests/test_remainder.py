@@ -158,7 +158,7 @@ def test_cable_cli_says_what_the_law_leaves(tmp_path, monkeypatch, capsys):
 
     fit = _fit(tmp_path)
     monkeypatch.setattr(cable_fit, "fit_damper_cable",
-                        lambda *a, **k: ({"iwan5": {"dry": fit}}, {"best": "iwan5", "families": {}}))
+                        lambda *a, **k: ({"iwan5": {"dry": fit}}, {"best": "iwan5", "families": {}, "screened": {}}))
     from sbcal.inference import harmonic_refit  # the refit is tested in test_harmonic_refit.py: not here
     monkeypatch.setattr(harmonic_refit, "refit_harmonics", lambda fit, **k: None)
     rc = main(["cable", "--damper", "damper1", "--bench", str(tmp_path / "bench.csv"), "--runs", str(tmp_path / "runs"),

@@ -147,12 +147,13 @@ def cmd_cable(args) -> int:
     fits, comparison = fit_damper_cable(damper, data, laws=laws, seed=args.seed, prior_path=args.priors,
                                         workers=args.workers, progress=not args.quiet)
     best = comparison["best"]
+    compared = len(fits) > 1 or bool(comparison["screened"])  # a comparison of families was made
     for state, fit in sorted(fits[best].items()):  # refitted with the multi-harmonic solve where it is needed
         label = None if args.quiet else f"{damper.name} cable {state} ({best}, harmonics)"
         fit = refit_harmonics(fit, seed=args.seed, workers=args.workers, progress=label) or fit
         out = cable_dir(args.runs, damper.name, state)
         s = store_cable(fit, out, meta={"seed": args.seed, "made_by": args.command_line, "damper_values": asdict(damper)},
-                        comparison=comparison if len(fits) > 1 else None)
+                        comparison=comparison if compared else None)
         flag = "" if s["converged"] else f"  NOT CONVERGED ({s['reason']})"
         vals = ", ".join(f"{n} {p['median']:.3g} [{p['q05']:.3g}, {p['q95']:.3g}]" for n, p in s["parameters"].items())
         print(f"{damper.name} cable {state} ({best}, {len(fit.tests)} tests): {vals}; R-hat max {s['r_hat_max']:.3f}, "
@@ -169,11 +170,14 @@ def cmd_cable(args) -> int:
         if s.get("harmonic_refit"):
             print(f"  {_refit_words(s['harmonic_refit'])}")
         print(f"  stored in {out}/")
-    if len(fits) > 1:
+    if compared:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
             f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" + ("" if v["converged"] else " (not converged)")
             for law, v in comparison["families"].items())
             + f" (best: {best}" + ("" if comparison["converged"] else ", NOT CONVERGED: no family converged") + ")")
+        for law, v in comparison["screened"].items():
+            print(f"  not sampled: {law}, whose start lies {v['log_lik_gap']:.0f} nats of log-likelihood below "
+                  f"{v['below']}'s (screened beyond {v['threshold']:.0f}: its ELPD could not come near)")
         if comparison["higher_not_converged"]:
             print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
                   "(a comparison rests on converged posteriors only)")

@@ -45,7 +45,8 @@ from ..inference.stats import elpd_difference
 from ..inference.store import cable_dir
 from ..model.damper import Damper
 from ..model.extensions import CHAIN, EXTENSIONS
-from .fits import DiagnoseConfig, choose_law, fit_jobs, model_name, posterior_record, run_fits, zoned_law
+from .fits import (DiagnoseConfig, choose_law, fit_jobs, late_laws, model_name, posterior_record, run_fits, screen_cable_jobs,
+                   zoned_law)
 from .remainder import remainder
 from .locate import (band_excess, band_rms, off_bands, rocking_signature, screen_effects, signatures,
                      structure_statistics)
@@ -81,6 +82,7 @@ class _Case:
         for primary, secondary in models:
             jobs += fit_jobs(primary, secondary, damper=self.damper, data=self.data, tests=self.tests,
                              seed=self.seed, config=self.config, prior_path=self.prior_path, starts=starts)
+        jobs = screen_cable_jobs(jobs, self.config, self.label(f"{stage}: each cable family's start"))
         return run_fits(jobs, self.config, self.label(stage))
 
     def label(self, stage: str) -> str | None:
@@ -282,6 +284,9 @@ def diagnose(damper: Damper, data, tests=None, *, seed: int = 0, config: Diagnos
     candidates = [e for e in catalogue if screen[e]["kept"]] if misfit else []
     if candidates:
         fits.update(case.fit([(e, ()) for e in candidates], f"{len(candidates)} candidate extension(s)"))
+    while "strand_slip" in candidates and (late := late_laws(fits, "strand_slip")):  # screened below an unconverged law
+        fits.update(replace(case, config=replace(config, laws=late)).fit([("strand_slip", ())],
+                                                                         f"screened law(s) {', '.join(late)} after all"))
     law, starts = zoned_law(fits, "strand_slip", config) if "strand_slip" in candidates else (None, None)
     if law is not None:  # the uniform law leaves a misfit: its law changing along the arm, from the uniform one
         fits.update(replace(case, config=replace(config, laws=(law,))).fit([("strand_slip", ())], f"zoned law {law}",

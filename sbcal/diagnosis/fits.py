@@ -12,6 +12,7 @@ from ..core.workers import default_workers, one_blas_thread, run_jobs
 from ..data.labels import state_tests
 from ..inference.cable_fit import (CableFit, cable_config, cable_likelihood, cable_seed, compare_families,
                                    compared_laws, sample_cable, zoned_candidate, zoned_start)
+from ..inference.cable_start import screen, unscreened
 from ..inference.calibrate import likelihood_for
 from ..inference.checks import ALPHA, GLOBAL_ALPHA, curve_moments, predictive_check, qualifier
 from ..inference.likelihood import JointLikelihood
@@ -23,8 +24,8 @@ from ..model.laws import fitted_laws
 from ..model.laws.zones import ZONED_SUFFIX
 
 
-__all__ = ["DiagnoseConfig", "posterior_record", "CURVE_QUANTITIES", "model_name", "fit_jobs", "run_fits", "choose_law",
-           "zoned_law"]
+__all__ = ["DiagnoseConfig", "posterior_record", "CURVE_QUANTITIES", "model_name", "fit_jobs", "screen_cable_jobs",
+           "run_fits", "choose_law", "late_laws", "zoned_law"]
 
 CURVE_QUANTITIES = ("magnitude", "phase")
 
@@ -146,10 +147,14 @@ class FitJob:
     config : DiagnoseConfig
     tests : tuple of str
         The tests the fit is of (one, or a cable state's).
-    start : dict, optional
-        A cable fit's start (natural values by name; default :func:`sbcal.inference.cable_fit.cable_start`).
+    start : dict or ndarray, optional
+        A cable fit's start (natural values by name, or the family screen's in sampled coordinates; default
+        :func:`sbcal.inference.cable_fit.cable_start`).
     workers : int
         Processes for the fit's own ensembles (more than 1 only when its batch leaves workers idle).
+    screened : dict, optional
+        A cable fit's: the families of its comparison that the screen left unsampled
+        (:func:`sbcal.inference.cable_start.screen_families`).
     """
 
     key: tuple
@@ -157,8 +162,9 @@ class FitJob:
     stream: object
     config: DiagnoseConfig
     tests: tuple
-    start: dict | None = None
+    start: object = None
     workers: int = 1
+    screened: dict | None = None
 
 
 def _fit(job: FitJob):
@@ -173,8 +179,12 @@ def _fit(job: FitJob):
 
 def _posterior(job: FitJob, res) -> dict:
     """An engine result -> what the diagnosis needs: model curves per test (in ``tests``), pointwise
-    log-likelihood, convergence (:func:`posterior_record`)."""
-    return posterior_record(job.target, job.tests, res)
+    log-likelihood, convergence (:func:`posterior_record`); a cable fit's record also names the families
+    the screen left unsampled (``screened``)."""
+    record = posterior_record(job.target, job.tests, res)
+    if job.screened is not None:
+        record["screened"] = job.screened
+    return record
 
 
 def posterior_record(like, tests, res) -> dict:
@@ -187,6 +197,28 @@ def posterior_record(like, tests, res) -> dict:
     return dict(params=params, names=like.prior.names, log_lik=res.log_likelihood, mu_mean=mu_mean, mu_var=mu_var,
                 mu_median=mu_median, convergence=res.convergence_dict(), converged=res.converged,
                 result=res, like=like, n_params=like.prior.ndim, tests=tuple(tests), loo=loo(res.log_likelihood))
+
+
+def screen_cable_jobs(jobs, config, label=None) -> list:
+    """The jobs with each cable model's families screened (:func:`sbcal.inference.cable_start.screen`): the
+    starts of every family and cable state made first, a family far below the best there dropped, the
+    others started there (same stream: the draws they would have unscreened). Models with one family, or
+    whose starts are given, are left as they are."""
+    cable = {}
+    for j in jobs:
+        if isinstance(j.target, JointLikelihood) and j.start is None:
+            cable.setdefault(j.key[0], {}).setdefault(j.key[2], {})[j.key[1]] = (j.target, j.stream)
+    found = {name: screen(by_law, workers=config.workers, label=label) for name, by_law in cable.items()
+             if len(by_law) > 1}
+    out = []
+    for j in jobs:
+        if isinstance(j.target, JointLikelihood) and j.key[0] in found:
+            modes, screened = found[j.key[0]]
+            if j.key[2] in screened:
+                continue
+            j = replace(j, start=modes[j.key[2]][j.key[1]].z, screened=screened)
+        out.append(j)
+    return out
 
 
 def run_fits(jobs, config, label) -> dict:
@@ -209,10 +241,22 @@ def choose_law(fits: dict, name: str) -> tuple[dict, dict | None]:
     for (_, state, law), f in cable.items():
         by_law.setdefault(law, {})[state] = CableFit(damper="", state=state, law=law, tests=(), effects=(),
                                                      result=f["result"], like=f["like"], loo=f["loo"])
-    comparison = compare_families(by_law)
+    screened = {}  # what the screens of every batch left unsampled (a later batch's word last)
+    for f in cable.values():
+        screened.update(f.get("screened") or {})
+    comparison = compare_families(by_law, {law: v for law, v in screened.items() if law not in by_law})
     best = comparison["best"]
     kept = {(name, state): dict(f, law=law) for (_, state, law), f in cable.items() if law == best}
     return kept, comparison
+
+
+def late_laws(fits: dict, name: str) -> tuple:
+    """The cable families of the model ``name`` that the screen left unsampled below a family whose posterior
+    did not converge (:func:`sbcal.inference.cable_start.unscreened`): to be fitted after all."""
+    _, comparison = choose_law(fits, name)
+    if comparison is None:
+        return ()
+    return tuple(unscreened(comparison["screened"], {law: v["converged"] for law, v in comparison["families"].items()}))
 
 
 def zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | None, dict | None]:

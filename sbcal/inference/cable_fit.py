@@ -26,8 +26,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import differential_evolution, least_squares, minimize
-from scipy.stats import qmc
 
 from ..core.errors import InputError
 from ..core.seeds import job_seed, seed_key
@@ -37,6 +35,7 @@ from ..model.cable_harmonics import HarmonicBalance
 from ..model.damper import Damper
 from ..model.laws import fitted_laws, law_for, zoned
 from ..model.laws.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
+from .cable_start import cable_start, fit_streams, polish_mode, screen, screen_families, unscreened
 from .calibrate import likelihood_for
 from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, materiality, predictive_check, qualifier
 from .distortion import predicted_distortion
@@ -180,88 +179,6 @@ def cable_likelihood(damper: Damper, data, tests, law: str, *, effects=(), prior
     return JointLikelihood(likes, prior, CableForward(law, amp, seg, tuple(effects)))
 
 
-def _residuals(like: JointLikelihood, z) -> np.ndarray:
-    """Run means minus model over the noise's scale of a mean, every test and line: ``(n, n_values)``
-    at sampled coordinates ``z`` (n, ndim); 1e3 where the model fails."""
-    out = []
-    for lk, mu in zip(like.likes, like.predict(like.prior.params(np.atleast_2d(z)))):
-        r = lk.residual(mu) / np.sqrt(lk.sigma ** 2 / lk.n)[:, None, :]
-        out.append(np.moveaxis(r, 1, 0).reshape(mu.shape[1], -1))
-    r = np.concatenate(out, axis=1)
-    return np.where(np.isfinite(r), r, 1e3)
-
-
-_START_DESIGN = 512  # Sobol points over the box
-_START_BEST = 6  # of which the best are refined
-_START_NFEV = 60  # Gauss-Newton iterations per refinement
-_START_DE = (6, 60)  # differential evolution: population per dimension, generations
-
-
-def polish_mode(like: JointLikelihood, z0) -> tuple[np.ndarray, float]:
-    """L-BFGS-B ascent of the log-posterior within the box from ``z0`` (value and central-difference
-    gradient in one batched call); ``(z, log-posterior)``."""
-    prior = like.prior
-    lo, hi = prior.z_lower, prior.z_upper
-    h = 1e-6 * (hi - lo)
-    eye = np.diag(h)
-
-    def cost(z):
-        lp = like(np.vstack([z, z + eye, z - eye]))
-        lp = np.where(np.isfinite(lp), lp, -1e100)
-        d = prior.ndim
-        return -lp[0], -(lp[1:d + 1] - lp[d + 1:]) / (2 * h)
-
-    z0 = np.clip(z0, lo + 2 * h, hi - 2 * h)
-    res = minimize(cost, z0, jac=True, method="L-BFGS-B", bounds=list(zip(lo + h, hi - h)), options={"maxiter": 300})
-    z = res.x if -res.fun >= like(z0[None])[0] else z0
-    return z, float(like(z[None])[0])
-
-
-def cable_start(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
-    """The start of a cable fit in sampled coordinates ``(ndim,)``: the highest log-posterior of
-    several local ascents (:func:`polish_mode`) from distinct places of the box.
-
-    Candidates: Gauss-Newton least-squares descents (trust region within the box, soft-L1 loss on
-    the run means' standardised residuals, forward-difference Jacobian in one batched model call)
-    from the best points of a Sobol design, and the best of a differential-evolution search on the
-    log-posterior. Each kind alone stops in a wrong place on some data: differential evolution on a
-    plateau where a cut-off runs to its bound and the law stops changing within the bench's
-    curvatures (damper1's dry cable under ``iwan5``: ``chi_macro`` at 1/m, 720 below the mode in
-    log-posterior; two of four ensembles stayed there), least squares in a local mode of the
-    least-squares cost that is not the posterior's (``bouc_wen``, whose misfit is many noise scales,
-    where the robust t likelihood weighs residuals differently).
-    """
-    prior = like.prior
-    lo, hi = prior.z_lower, prior.z_upper
-    s_sobol, s_de = rng.spawn(2)
-    z = lo + (hi - lo) * qmc.Sobol(prior.ndim, seed=s_sobol).random(_START_DESIGN)
-    lp = np.concatenate([like(z[i:i + 128]) for i in range(0, len(z), 128)])
-    step = 1e-6 * (hi - lo)
-
-    def jac(zz):
-        h = np.where(zz + step <= hi, step, -step)
-        r = _residuals(like, np.vstack([zz, zz + np.diag(h)]))
-        return ((r[1:] - r[0]) / h[:, None]).T
-
-    candidates = []
-    for z0 in z[np.argsort(-lp)[:_START_BEST]]:
-        z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        res = least_squares(lambda zz: _residuals(like, zz)[0], z0, jac=jac, bounds=(lo, hi), loss="soft_l1",
-                            f_scale=3.0, max_nfev=_START_NFEV)
-        candidates.append(res.x)
-
-    def cost(zt):  # scipy passes (ndim, S) when vectorized
-        v = like(np.atleast_2d(zt.T).reshape(-1, prior.ndim))
-        return np.where(np.isfinite(v), -v, 1e100)
-
-    per_dim, generations = _START_DE
-    de = differential_evolution(cost, bounds=list(zip(lo, hi)), popsize=per_dim, maxiter=generations, tol=1e-6,
-                                seed=s_de, polish=False, vectorized=True, updating="deferred", init="sobol")
-    candidates.append(de.x)
-    best = max((polish_mode(like, c) for c in candidates), key=lambda t: t[1])
-    return best[0]
-
-
 @dataclass(frozen=True)
 class CableFit:
     """One cable state's posterior under one law family.
@@ -328,16 +245,17 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
         The fit's stream (:func:`cable_seed`); the start and the engine each get a child of it.
     config : SamplerConfig, optional
         Default :func:`cable_config`.
-    start : dict, optional
-        Natural values by name to polish the mode from (default: :func:`cable_start`); a parameter it
-        does not name starts at the middle of its box (in the sampled coordinate).
+    start : dict or ndarray, optional
+        Natural values by name to polish the mode from (a parameter it does not name starts at the middle
+        of its box, in the sampled coordinate), or a start in sampled coordinates ``(ndim,)`` made with
+        this fit's own start stream (:func:`sbcal.inference.cable_start.screen`); default :func:`cable_start`.
     progress : str, optional
 
     Returns
     -------
     SampleResult
     """
-    s_start, s_sample = seed.spawn(2)
+    s_start, s_sample = fit_streams(seed)
     if start is None:
         start = cable_start(like, np.random.default_rng(s_start))
     elif isinstance(start, dict):
@@ -367,8 +285,9 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
         Secondary effects on top (:data:`SECONDARY`).
     workers, max_steps, max_draws : int
         As :func:`cable_config` (the draws do not depend on ``workers``).
-    start : dict, optional
-        Natural values by name to polish the mode from (default: :func:`cable_start`).
+    start : dict or ndarray, optional
+        Natural values by name to polish the mode from, or a start in sampled coordinates
+        (``(ndim,)``, e.g. the family screen's); default :func:`cable_start`.
     prior_path : path-like, optional
         The prior file of the base geometry boxes (``--priors``).
     progress : str, optional
@@ -383,7 +302,7 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
                     like=like, loo=loo(res.log_likelihood))
 
 
-def compare_families(fits: dict) -> dict:
+def compare_families(fits: dict, screened: dict | None = None) -> dict:
     """The best family by PSIS-LOO summed over cable states, among those whose posterior converged in
     every state, and each family's difference to it.
 
@@ -392,9 +311,10 @@ def compare_families(fits: dict) -> dict:
     ELPD is above the winner's. When no family converged, the highest ELPD is ``best`` with
     ``converged`` False (a caller must not present it as a result).
 
-    ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law). Returns
+    ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law); ``screened``: the
+    families not sampled (:func:`sbcal.inference.cable_start.screen_families`), kept in the result. Returns
     ``{"best": law, "converged": bool, "higher_not_converged": [law], "families": {law: {"elpd", "se",
-    "delta_elpd", "se_delta", "converged"}}}``.
+    "delta_elpd", "se_delta", "converged"}}, "screened": {law: {"log_lik_gap", "threshold", "below"}}}``.
     """
     pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
     elpd = {law: float(p.sum()) for law, p in pointwise.items()}
@@ -407,7 +327,8 @@ def compare_families(fits: dict) -> dict:
         out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se,
                     "converged": converged[law]}
     higher = sorted((law for law in elpd if not converged[law] and elpd[law] > elpd[best]), key=lambda k: -elpd[k])
-    return {"best": best, "converged": converged[best], "higher_not_converged": higher, "families": out}
+    return {"best": best, "converged": converged[best], "higher_not_converged": higher, "families": out,
+            "screened": dict(screened or {})}
 
 
 def law_curves(law: str, draws: dict, chi, zone: str = "middle") -> tuple[np.ndarray, np.ndarray]:
@@ -557,12 +478,14 @@ def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, pri
     """Every cable state of a damper under every family (default: :func:`compared_laws` of
     :func:`~sbcal.model.laws.fitted_laws`, then the best one's zoned law where :func:`zoned_candidate` says so);
     ``(fits, comparison)`` with ``fits[law][state]`` and the comparison of :func:`compare_families`.
+    With several families, each one's start is made first and a family far below the best there is not
+    sampled (:func:`sbcal.inference.cable_start.screen`; named in the comparison's ``screened``).
     The harmonic refit comes after (:func:`sbcal.inference.harmonic_refit.refit_harmonics`)."""
     tests = list(data.tests(damper.name) if tests is None else tests)
     groups = state_tests(tests)
     default = laws is None
     laws = compared_laws(fitted_laws(), tests) if default else tuple(laws)
-    fits = {}
+    fits, modes, screened = {}, {}, {}
 
     def fit_law(law, starts=None):
         fits[law] = {}
@@ -571,15 +494,27 @@ def fit_damper_cable(damper: Damper, data, tests=None, *, laws=None, seed=0, pri
             fits[law][state] = fit_cable(damper, data, members, law, seed=seed, prior_path=prior_path, progress=label,
                                          workers=workers, start=(starts or {}).get(state))
 
-    for law in laws:
-        fit_law(law)
-    comparison = compare_families(fits)
+    if len(laws) > 1:
+        jobs = {law: {state: (cable_likelihood(damper, data, members, law, prior_path=prior_path),
+                              cable_seed(seed, damper.name, state, law))
+                      for state, members in sorted(groups.items())} for law in laws}
+        modes, screened = screen(jobs, workers=workers,
+                                 label=f"{damper.name} cable: each family's start" if progress else None)
+    todo = [law for law in laws if law not in screened]
+    while todo:  # a round more where a family screened others and did not converge
+        for law in todo:
+            fit_law(law, {state: m.z for state, m in modes.get(law, {}).items()})
+        late = unscreened(screened, {law: all(f.result.converged for f in fits[law].values()) for law in fits})
+        again = screen_families({law: modes[law] for law in late}) if late else {}
+        screened = {law: v for law, v in screened.items() if law not in late} | again
+        todo = [law for law in late if law not in again]
+    comparison = compare_families(fits, screened)
     if default:
         partial = any(_remainder(f)[0]["qualifier"] == "partial" for f in fits[comparison["best"]].values())
         law = zoned_candidate(comparison, partial)
         if law is not None and compared_laws((law,), tests):
             top = law[:-len(ZONED_SUFFIX)]  # its uniform family: the zoned fit starts from it
             fit_law(law, {state: zoned_start(f.median(), f.like.prior) for state, f in fits[top].items()})
-            comparison = compare_families(fits)
+            comparison = compare_families(fits, screened)
     return fits, comparison
 
