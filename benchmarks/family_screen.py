@@ -38,6 +38,14 @@ VIRTUAL = {"bouc_wen": "strand_slip=law:bouc_wen,chi_slip:0.01,delta_EJ:30",
 VIRTUAL_TESTS = ["0.2-0.2", "0.5-0.5", "1-1", "2-2"]
 
 
+def bench_spec(text: str) -> str:
+    """``--benches`` entries: ``bundled:DAMPER`` or ``virtual:LAW`` (one line from argparse otherwise)."""
+    kind, _, name = text.partition(":")
+    if not ((kind == "bundled" and name) or (kind == "virtual" and name in VIRTUAL)):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected bundled:DAMPER or virtual:{{{','.join(VIRTUAL)}}}")
+    return text
+
+
 def bench(spec: str):
     kind, name = spec.split(":")
     if kind == "bundled":
@@ -53,7 +61,7 @@ def bench(spec: str):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--benches", nargs="+", default=["bundled:damper1", "bundled:damper2", "virtual:bouc_wen",
+    ap.add_argument("--benches", nargs="+", type=bench_spec, default=["bundled:damper1", "bundled:damper2", "virtual:bouc_wen",
                                                       "virtual:iwan5"])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
