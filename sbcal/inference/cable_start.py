@@ -29,9 +29,9 @@ SCREEN_PER_PARAMETER = 10.0
 
 Why this is safe: for a regular posterior the ELPD sits about ``d`` below the log-likelihood at the mode (the
 asymptotics behind AIC), so the ELPD gap of two families is about their mode gap less the difference of
-their parameter counts. A margin of ``10 (d_a + d_b)`` lets either family's shortfall exceed its regular value several times over (a
-misspecified law, heavy-tailed runs: measured 1.4-4.5 nats a parameter) before the screen could drop a
-family that would have ranked first. On the bundled bench the mode gap of Bouc-Wen to Iwan is 13 446 nats
+their parameter counts. A margin of ``10 (d_a + d_b)`` lets either family's shortfall exceed its regular
+value several times over (a misspecified law, heavy-tailed runs: measured 1.4-4.5 nats a parameter) before
+the screen could drop a family that would have ranked first. On the bundled bench the mode gap of Bouc-Wen to Iwan is 13 446 nats
 against an ELPD gap of 13 417 +- 390 (damper1; threshold 320)."""
 
 
@@ -115,7 +115,6 @@ def cable_start(like: JointLikelihood, rng: np.random.Generator) -> np.ndarray:
     candidates.append(de.x)
     best = max((polish_mode(like, c) for c in candidates), key=lambda t: t[1])
     return best[0]
-
 
 
 # --- the family screen ------------------------------------------------------------------------------
