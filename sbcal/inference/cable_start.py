@@ -31,8 +31,8 @@ Why this is safe: for a regular posterior the ELPD sits about ``d`` below the lo
 asymptotics behind AIC), so the ELPD gap of two families is about their mode gap less the difference of
 their parameter counts. A margin of ``10 (d_a + d_b)`` lets either family's shortfall exceed its regular
 value several times over (a misspecified law, heavy-tailed runs: measured 1.4-4.5 nats a parameter) before
-the screen could drop a family that would have ranked first. On the bundled bench the mode gap of Bouc-Wen to Iwan is 13 446 nats
-against an ELPD gap of 13 417 +- 390 (damper1; threshold 320)."""
+the screen could drop a family that would have ranked first. On the bundled bench the mode gap of
+Bouc-Wen to Iwan is 13 446 nats against an ELPD gap of 13 417 +- 390 (damper1; threshold 320)."""
 
 
 def _residuals(like: JointLikelihood, z) -> np.ndarray:
