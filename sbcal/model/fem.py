@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import InputError
+from . import fem_kernel
 from .damper import GEOMETRY, Damper
 
 
@@ -68,7 +69,7 @@ STANDARD_GRID_HZ = np.concatenate(
 
 
 def _resolve(damper: Damper, params: dict) -> tuple[dict, int]:
-    """Check names and shapes; return every parameter as an array of shape (n or 1, 1)."""
+    """Check names and shapes; return each given parameter as an array of shape (n or 1, 1)."""
     unknown = sorted(set(params) - set(PARAMETER_NAMES))
     if unknown:
         raise InputError(
@@ -87,9 +88,19 @@ def _resolve(damper: Damper, params: dict) -> tuple[dict, int]:
                 raise InputError(f"parameter {name!r}: {a.size} sets where others have {n_sets}")
             n_sets = max(n_sets, a.size)
         out[name] = a.reshape(-1, 1)
-    for name in GEOMETRY:
-        out.setdefault(name, np.full((1, 1), getattr(damper, name)))
     return out, n_sets
+
+
+def _geometry(damper: Damper, p: dict) -> np.ndarray:
+    """:data:`GEOMETRY` by row, the damper's nominal values where ``p`` gives none: shape (12, 1 or n_sets)."""
+    base = np.array([getattr(damper, name) for name in GEOMETRY])[:, None]
+    given = [name for name in GEOMETRY if name in p]
+    if not given:
+        return base
+    g = np.repeat(base, max(p[name].shape[0] for name in given), axis=1)
+    for name in given:
+        g[GEOMETRY.index(name)] = p[name][:, 0]
+    return g
 
 
 def _rigidity(p: dict, omega: np.ndarray, damper: Damper):
@@ -102,110 +113,12 @@ def _rigidity(p: dict, omega: np.ndarray, damper: Damper):
     return p.get("EJ", np.full((1, 1), damper.ej_static))
 
 
-def _arm_matrices(p):
-    """Unit-EJ blocks of both arms, free node (F) and clamp (B), as nested 2x2 lists.
-
-    Every entry is an array with a leading axis of length 2 (arm 1, arm 2), then the set axis.
-    Returns (Kff, Mff, Kfb, Mfb, Kbb, Mbb) with K at EJ = 1 (scale by ``EJ (1 + i beta)``); Mff
-    includes the lumped end mass. Arm 1 runs mass 1 -> clamp, arm 2 clamp -> mass 2, which flips
-    the sign ``t`` of the odd Hermite terms between them.
-    """
-    def pair(a, b):
-        return np.stack(np.broadcast_arrays(p[a], p[b]))
-
-    l, m, J, a = pair("L1", "L2"), pair("m1", "m2"), pair("J1", "J2"), pair("a1", "a2")
-    t = _ARM_SIGN
-    k = 1.0 / l**3
-    c = p["mu"] * l / 420.0
-    ma = m * a
-    lk, l2k, lc, l2c = l * k, l * l * k, l * c, l * l * c
-    Kff = [[12 * k, t * 6 * lk], [t * 6 * lk, 4 * l2k]]
-    Mff = [[156 * c + m, t * 22 * lc + ma], [t * 22 * lc + ma, 4 * l2c + J + ma * a]]
-    Kfb = [[-12 * k, t * 6 * lk], [-t * 6 * lk, 2 * l2k]]
-    Mfb = [[54 * c, -t * 13 * lc], [t * 13 * lc, -3 * l2c]]
-    Kbb = [[12 * k, -t * 6 * lk], [-t * 6 * lk, 4 * l2k]]
-    Mbb = [[156 * c, -t * 22 * lc], [-t * 22 * lc, 4 * l2c]]
-    return Kff, Mff, Kfb, Mfb, Kbb, Mbb
-
-
-_ARM_SIGN = np.array([1.0, -1.0]).reshape(2, 1, 1)
-
-
-def _modes(K, M):
-    """Mass-normalised modes of the symmetric 2x2 pencil (K, M), elementwise over arms and sets.
-
-    Returns ``[(lam, (phi0, phi1)), ...]`` for the two eigenvalues, with ``phi^T M phi = 1``.
-    """
-    a = M[0][0] * M[1][1] - M[0][1] ** 2
-    b = K[0][0] * M[1][1] + K[1][1] * M[0][0] - 2 * K[0][1] * M[0][1]
-    c = K[0][0] * K[1][1] - K[0][1] ** 2
-    q = 0.5 * (b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0)))  # no cancellation in either root
-    out = []
-    for lam in (c / q, q / a):
-        # null vector of K - lam M from whichever row is better conditioned
-        r00, r01, r11 = K[0][0] - lam * M[0][0], K[0][1] - lam * M[0][1], K[1][1] - lam * M[1][1]
-        use0 = np.abs(r00) >= np.abs(r11)
-        v0 = np.where(use0, -r01, r11)
-        v1 = np.where(use0, r00, -r01)
-        norm = np.sqrt(v0 * v0 * M[0][0] + 2 * v0 * v1 * M[0][1] + v1 * v1 * M[1][1])
-        out.append((lam, (v0 / norm, v1 / norm)))
-    return out
-
-
-def _modal(p, cols):
-    """Partial-fraction constants of both arms' condensed impedance at unit EJ.
-
-    With ``sigma = EJ (1 + i beta)`` and ``x = omega^2`` an arm adds to ``H[a, b]``::
-
-        sigma * alpha[a,b] + x * gamma[a,b] + sigma^2 * sum_j G_j[a,b] / (x - sigma * lam_j)
-
-    exactly (the Schur complement expanded on the arm's two clamped-base modes). ``cols`` lists
-    the clamp DOFs wanted (0 = xc, 1 = phic). Returns (lam, G, alpha, gamma): lam a list of two
-    arrays (arm axis first), G/alpha/gamma dicts keyed by (a, b).
-    """
-    Kff, Mff, Kfb, Mfb, Kbb, Mbb = _arm_matrices(p)
-    lam, g, r = [], [], []
-    for lam_j, (f0, f1) in _modes(Kff, Mff):
-        lam.append(lam_j)
-        rj = {a: f0 * Mfb[0][a] + f1 * Mfb[1][a] for a in cols}
-        g.append({a: f0 * Kfb[0][a] + f1 * Kfb[1][a] - lam_j * rj[a] for a in cols})
-        r.append(rj)
-    G, alpha, gamma = {}, {}, {}
-    for a in cols:
-        for b in cols:
-            if b < a:
-                continue
-            G[a, b] = [g[j][a] * g[j][b] for j in (0, 1)]
-            alpha[a, b] = Kbb[a][b] - sum(g[j][a] * r[j][b] + g[j][b] * r[j][a] + r[j][a] * r[j][b] * lam[j]
-                                         for j in (0, 1))
-            gamma[a, b] = sum(r[j][a] * r[j][b] for j in (0, 1)) - Mbb[a][b]
-    return lam, G, alpha, gamma
-
-
-def _condensed(p, ej1, ej2, beta1, beta2, omega, full):
-    """Entries (h00, h01, h11) of the clamp impedance H; each broadcasts to (n, n_freq).
-
-    ``ej1, ej2`` and ``beta1, beta2`` are per arm, shape (n or 1, 1 or n_freq).
-
-    ``H[a,b] = const + x * lin + sum over the four modes of R / (x - pole)``, ``x = omega^2``:
-    the per-set constants are cheap, and only four complex divisions per line remain.
-    """
-    x = omega * omega
-    keys = ((0, 0), (0, 1), (1, 1)) if full else ((0, 0),)
-    mc, ac = p["mc"], p["ac"]
-    clamp = {(0, 0): mc, (0, 1): mc * ac, (1, 1): p["Jc"] + mc * ac * ac}  # the clamp's own inertia
-    # sigma = EJ (1 + i beta) per arm, stacked on a leading arm axis: (2, n, 1 or n_freq)
-    sigma = np.stack(np.broadcast_arrays(ej1 * (1 + 1j * beta1), ej2 * (1 + 1j * beta2)))
-    lam, G, alpha, gamma = _modal(p, (0, 1) if full else (0,))
-    poles = [sigma * lam_j for lam_j in lam]
-    s2 = sigma * sigma
-    h = []
-    for key in keys:
-        acc = sigma * alpha[key] + x * gamma[key]
-        for j in (0, 1):
-            acc = acc + s2 * G[key][j] / (x - poles[j])
-        h.append(acc[0] + acc[1] - x * clamp[key])
-    return (h[0], None, None) if not full else tuple(h)
+def _condensed(geometry, ej1, ej2, beta1, beta2, omega, n_sets, full):
+    """The clamp impedance's entries, complex (3 or 1, n_sets, n_freq): ``H[0, 0]`` (and ``H[0, 1]``,
+    ``H[1, 1]`` when ``full``), compiled (:func:`sbcal.model.fem_kernel.impedance`). ``ej1, ej2, beta1,
+    beta2`` per arm, shape (n or 1, 1 or n_freq); ``omega`` (1, n_freq)."""
+    arms = (np.ascontiguousarray(a, dtype=float) for a in (ej1, ej2, beta1, beta2))
+    return fem_kernel.impedance(np.ascontiguousarray(geometry), *arms, np.ascontiguousarray(omega[0]), n_sets, full)
 
 
 def _prepare(damper, freq_hz, params):
@@ -217,6 +130,11 @@ def _prepare(damper, freq_hz, params):
     ej = _rigidity(p, omega, damper)
     beta = p.get("beta", np.zeros((1, 1)))
     return p, n_sets, omega, ej, p.get("beta1", beta), p.get("beta2", beta)
+
+
+def _matrix(h) -> np.ndarray:
+    """(3, n, n_freq) entries to the symmetric (n, n_freq, 2, 2) H."""
+    return np.stack([np.stack([h[0], h[1]], -1), np.stack([h[1], h[2]], -1)], -2)
 
 
 def dynamic_stiffness(damper: Damper, freq_hz, **params) -> np.ndarray:
@@ -238,8 +156,7 @@ def dynamic_stiffness(damper: Damper, freq_hz, **params) -> np.ndarray:
         (in (0, pi) for a passive damper with ``beta > 0``).
     """
     p, n_sets, omega, ej, b1, b2 = _prepare(damper, freq_hz, params)
-    h00, _, _ = _condensed(p, ej, ej, b1, b2, omega, full=False)
-    return np.broadcast_to(h00, (n_sets, omega.shape[1])).copy() if h00.shape[0] != n_sets else h00
+    return _condensed(_geometry(damper, p), ej, ej, b1, b2, omega, n_sets, full=False)[0]
 
 
 def clamp_impedance(damper: Damper, freq_hz, **params) -> np.ndarray:
@@ -249,9 +166,7 @@ def clamp_impedance(damper: Damper, freq_hz, **params) -> np.ndarray:
     units N/m, N/rad, N m/m, N m/rad. H is symmetric (reciprocity).
     """
     p, n_sets, omega, ej, b1, b2 = _prepare(damper, freq_hz, params)
-    h00, h01, h11 = (np.broadcast_to(h, (n_sets, omega.shape[1]))
-                     for h in _condensed(p, ej, ej, b1, b2, omega, full=True))
-    return np.stack([np.stack([h00, h01], -1), np.stack([h01, h11], -1)], -2)
+    return _matrix(_condensed(_geometry(damper, p), ej, ej, b1, b2, omega, n_sets, full=True))
 
 
 def natural_frequencies(damper: Damper, **params) -> np.ndarray:
@@ -269,8 +184,8 @@ def natural_frequencies(damper: Damper, **params) -> np.ndarray:
     if any(q in params for q in _POLY):
         raise InputError("natural_frequencies: EJ(omega) as a polynomial has no fixed eigenproblem")
     p, n_sets, _, ej, _, _ = _prepare(damper, [1.0], params)
-    lam = [ej * lam_j[arm] for lam_j, _ in _modes(*_arm_matrices(p)[:2]) for arm in (0, 1)]
-    lam = np.concatenate([np.broadcast_to(v, (n_sets, 1)) for v in lam], axis=1)
+    constants = fem_kernel.modal_constants(_geometry(damper, p))  # (n or 1, arm, N_CONSTANTS)
+    lam = np.broadcast_to(ej * constants[:, :, :2].reshape(-1, 4), (n_sets, 4))  # lam_j at EJ = 1, times EJ
     return np.sort(np.sqrt(lam) / (2 * np.pi), axis=1)
 
 
@@ -328,8 +243,7 @@ def arm_impedance(damper: Damper, freq_hz, *, ej1, ej2, beta1=0.0, beta2=0.0, **
     """
     p, n, omega, (e1, e2, b1, b2) = _prepare_arms(
         damper, freq_hz, dict(ej1=ej1, ej2=ej2, beta1=beta1, beta2=beta2), geometry)
-    h00, h01, h11 = (np.broadcast_to(h, (n, omega.shape[1])) for h in _condensed(p, e1, e2, b1, b2, omega, True))
-    return np.stack([np.stack([h00, h01], -1), np.stack([h01, h11], -1)], -2)
+    return _matrix(_condensed(_geometry(damper, p), e1, e2, b1, b2, omega, n, full=True))
 
 
 @dataclass(frozen=True, eq=False)
@@ -391,17 +305,15 @@ class ArmKernel:
         return np.moveaxis(np.stack([c0, c1], -1), 0, -2)
 
 
-def _kernel(p, n_sets) -> ArmKernel:
-    Kff, Mff, Kfb, Mfb, _, _ = _arm_matrices(p)
-    lam, phi, g, r = [], [], [], []
-    for lam_j, (f0, f1) in _modes(Kff, Mff):
-        rj = tuple(f0 * Mfb[0][a] + f1 * Mfb[1][a] for a in (0, 1))
-        g.append(tuple(f0 * Kfb[0][a] + f1 * Kfb[1][a] - lam_j * rj[a] for a in (0, 1)))
-        lam.append(lam_j)
-        phi.append((f0, f1))
-        r.append(rj)
-    length = np.stack(np.broadcast_arrays(p["L1"], p["L2"]))
-    return ArmKernel(tuple(lam), tuple(phi), tuple(g), tuple(r), length, n_sets)
+def _kernel(damper, p, n_sets) -> ArmKernel:
+    geometry = _geometry(damper, p)
+    c = np.moveaxis(fem_kernel.modal_constants(geometry), 0, -1)[..., None]  # (arm, N_CONSTANTS, n or 1, 1)
+    lam = (c[:, 0], c[:, 1])
+    phi = ((c[:, 2], c[:, 3]), (c[:, 4], c[:, 5]))
+    g = ((c[:, 6], c[:, 7]), (c[:, 8], c[:, 9]))
+    r = ((c[:, 10], c[:, 11]), (c[:, 12], c[:, 13]))
+    length = geometry[[GEOMETRY.index("L1"), GEOMETRY.index("L2")]][:, :, None]
+    return ArmKernel(lam, phi, g, r, length, n_sets)
 
 
 def arm_kernel(damper: Damper, **geometry) -> ArmKernel:
@@ -410,7 +322,7 @@ def arm_kernel(damper: Damper, **geometry) -> ArmKernel:
     ``**geometry``: ``m1, J1, a1, ..., L1, L2, mu``, each a scalar or shape (n_sets,).
     """
     p, n_sets, _, _ = _prepare_arms(damper, [1.0], {}, geometry)
-    return _kernel(p, n_sets)
+    return _kernel(damper, p, n_sets)
 
 
 def free_response(damper: Damper, freq_hz, *, ej1, ej2, beta1=0.0, beta2=0.0, xc=1.0, phic=0.0,
@@ -439,7 +351,7 @@ def free_response(damper: Damper, freq_hz, *, ej1, ej2, beta1=0.0, beta2=0.0, xc
     p, n, omega, (e1, e2, b1, b2, xb0, xb1) = _prepare_arms(
         damper, freq_hz, dict(ej1=ej1, ej2=ej2, beta1=beta1, beta2=beta2, xc=xc, phic=phic), geometry)
     sigma = np.stack(np.broadcast_arrays(e1 * (1 + 1j * b1), e2 * (1 + 1j * b2)))
-    xf = _kernel(p, n).free_response(omega, sigma, xb0, xb1)
+    xf = _kernel(damper, p, n).free_response(omega, sigma, xb0, xb1)
     return np.moveaxis(np.broadcast_to(xf, (2, n, omega.shape[1], 2)), 0, -2).copy()
 
 
@@ -465,5 +377,5 @@ def arm_curvatures(damper: Damper, freq_hz, *, ej1, ej2, beta1=0.0, beta2=0.0, x
     p, n, omega, (e1, e2, b1, b2, xb0, xb1) = _prepare_arms(
         damper, freq_hz, dict(ej1=ej1, ej2=ej2, beta1=beta1, beta2=beta2, xc=xc, phic=phic), geometry)
     sigma = np.stack(np.broadcast_arrays(e1 * (1 + 1j * b1), e2 * (1 + 1j * b2)))
-    chi = _kernel(p, n).curvatures(omega, np.broadcast_to(sigma, (2, n, omega.shape[1])), xb0, xb1)
+    chi = _kernel(damper, p, n).curvatures(omega, np.broadcast_to(sigma, (2, n, omega.shape[1])), xb0, xb1)
     return chi.copy()
