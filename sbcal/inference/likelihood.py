@@ -40,6 +40,7 @@ from scipy.special import gammaln
 
 from ..model.damper import Damper
 from ..model.fem import dynamic_stiffness
+from .density_kernel import mvt_log_likelihood
 from .priors import Prior
 
 
@@ -132,6 +133,10 @@ class TestLikelihood:
         dev = np.where(self.present, d - (self.ybar - ref)[:, None, :], 0.0)
         self.ss = np.sum(dev * dev, axis=1)  # (2, F): S
         self._const = _mvt_const(self.nu, self.n)
+        sig2 = self.sigma ** 2
+        # the compiled density's per-line constants (ybar, S / sigma^2, sigma^2, n, nu, the theta-free part)
+        self._density = tuple(np.ascontiguousarray(a, dtype=float) for a in (
+            self.ybar, self.ss / sig2, sig2, self.n, self.nu, self._const - 0.5 * (self.n - 1) * np.log(sig2)))
         self.fixed = dict(fixed or {})
         self.model = dynamic_stiffness if model is None else model
         self._errors = all(n in prior.names for n in _MODEL_ERROR)
@@ -177,16 +182,12 @@ class TestLikelihood:
     def log_likelihood(self, params: dict, mu=None) -> np.ndarray:
         """Log density of all runs (multivariate t per line and quantity): ``(n,)``.
 
-        ``mu`` (as :meth:`predict` returns) skips the forward model when the caller has it.
+        ``mu`` (as :meth:`predict` returns) skips the forward model when the caller has it. Compiled
+        (:func:`sbcal.inference.density_kernel.mvt_log_likelihood`).
         """
-        mu, s2, sig2 = self._parts(params, mu)
-        r = self.residual(mu)
-        big = sig2 + self.n * s2
-        q = self.ss[:, None, :] / sig2 + self.n * r * r / big
-        nu = self.nu[:, None, :]
-        lp = (self._const[:, None, :] - 0.5 * ((self.n - 1) * np.log(sig2) + np.log(big))
-              - 0.5 * (nu + self.n) * np.log(nu + q))
-        return np.sum(lp, axis=(0, 2))
+        mu = self.predict(params) if mu is None else mu
+        s2 = self.discrepancy_variance(params, mu.shape[1])[:, :, 0]
+        return mvt_log_likelihood(np.ascontiguousarray(mu, dtype=float), *self._density, np.ascontiguousarray(s2))
 
     def __call__(self, z) -> np.ndarray:
         z = np.atleast_2d(z)
