@@ -123,6 +123,7 @@ def test_shapes_and_broadcasting(damper1):
     (dict(EJ=[1.0, 2.0], beta=[0.1, 0.2, 0.3]), "sets"),
     (dict(EJ=np.ones((2, 2))), "shape"),
     (dict(EJ=9.0, q1=9.0), "either EJ"),
+    (dict(EJ=np.array([]), beta=0.1), r"shape \(0,\)"),  # the compiled kernel would read past an empty array
 ])
 def test_bad_parameters(damper1, kwargs, match):
     with pytest.raises(InputError, match=match):
@@ -161,3 +162,11 @@ def test_compiled_kernel_matches_numpy_formulation(damper1, other_damper, rng):
                         beta1=rng.uniform(0, 1, (n, 1)), beta2=0.3, a2=-0.015 * rng.uniform(0.9, 1.1, n))
         np.testing.assert_allclose(arm_impedance(d, FINE, **per_line), arm_impedance_numpy(d, FINE, **per_line),
                                    rtol=1e-10, atol=0)
+
+
+def test_arm_values_refused_when_empty(damper1):
+    """Per-arm values with no entries are refused in one line (the compiled kernel indexes rows 0..n-1)."""
+    from sbcal.model.fem import arm_impedance
+
+    with pytest.raises(InputError, match="ej1"):
+        arm_impedance(damper1, STANDARD_GRID_HZ, ej1=np.zeros((0, 1)), ej2=10.0)

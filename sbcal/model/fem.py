@@ -81,7 +81,7 @@ def _resolve(damper: Damper, params: dict) -> tuple[dict, int]:
     out = {}
     for name, value in params.items():
         a = np.asarray(value, dtype=float)
-        if a.ndim > 1:
+        if a.ndim > 1 or a.size == 0:
             raise InputError(f"parameter {name!r}: expected a scalar or shape (n_sets,), got shape {a.shape}")
         if a.ndim == 1:
             if n_sets not in (1, a.size) and a.size != 1:
@@ -210,7 +210,8 @@ def _prepare_arms(damper, freq_hz, arms, geometry):
         a = np.asarray(value)
         a = a.reshape(1, 1) if a.ndim == 0 else a
         # a 1-D array would be ambiguous (sets or lines?): ask for 2-D
-        if a.ndim != 2 or a.shape[1] not in (1, f.size) or (a.shape[0] not in (1, n_sets) and n_sets != 1):
+        if (a.ndim != 2 or a.size == 0 or a.shape[1] not in (1, f.size)
+                or (a.shape[0] not in (1, n_sets) and n_sets != 1)):
             raise InputError(f"{name}: expected a scalar or shape (n_sets or 1, n_freq or 1), got shape {a.shape}")
         n_sets = max(n_sets, a.shape[0])
         values.append(a)
