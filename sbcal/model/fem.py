@@ -12,8 +12,9 @@ Z_FF is block-diagonal (the free DOFs of the two arms do not couple), so H is a 
 closed forms plus the clamp's own inertia. Each arm's stiffness scales as ``sigma = EJ (1 + i beta)``,
 so expanding its 2x2 free block on its two clamped-base modes (frequency-independent) gives the
 exact partial-fraction form ``sigma alpha + omega^2 gamma + sum_j sigma^2 G_j / (omega^2 - sigma lam_j)``
-with per-set constants: four complex divisions per frequency line. Everything broadcasts on arrays
-of shape ``(n_sets, n_freq)``: no Python loop over frequencies or parameter sets.
+with per-set constants: four complex divisions per frequency line. The constants and the per-line sums
+run compiled, one fused loop over sets and lines (:mod:`sbcal.model.fem_kernel`); this module checks and
+broadcasts the parameters to it. Results have shape ``(n_sets, n_freq)``.
 
 Parameters (keyword arguments; each a scalar or an array of shape ``(n_sets,)``):
 
