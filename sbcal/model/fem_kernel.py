@@ -3,9 +3,9 @@ impedance, per parameter set and frequency line, in one fused loop.
 
 The arithmetic is :mod:`sbcal.model.fem`'s (``docs/model.md``): per arm, the unit-EJ Hermite blocks, the
 two mass-normalised modes of the free node's 2x2 pencil and the partial-fraction constants of the
-Schur complement; per line, four complex divisions. A sampler's batch (16-64 sets x 37 lines) is a few
-thousand flops, so the numpy formulation spent ~250 us a call on ~200 small-array operations and
-~1 us on arithmetic; compiled, a call costs what its arithmetic costs (``benchmarks/forward.py``).
+Schur complement; per line, four complex divisions. At a sampler's batch (16-64 sets x 37 lines) the numpy
+formulation spent ~230 us a 32-set call, most of it on ~200 small-array operations; compiled, the call takes
+46 us, ~30 of them this loop and the rest the argument checks (``benchmarks/forward.py``).
 The numpy formulation is kept as the tests' reference (``tests/fem_reference.py``); both agree to
 rounding (5e-14 relative on ``f_uu``, 5e-12 on ``H[0, 1]``, whose sum cancels to ~1e-3 of its terms).
 
