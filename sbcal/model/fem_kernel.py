@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .cable_kernel import _inv  # 1 / z without numba's branching complex division
+
 
 __all__ = ["N_CONSTANTS", "modal_constants", "impedance"]
 
@@ -86,13 +88,6 @@ def modal_constants(geometry):
         _arm(g[_L1, s], g[_M1, s], g[_J1, s], g[_A1, s], g[_MU, s], 1.0, out[s, 0])
         _arm(g[_L2, s], g[_M2, s], g[_J2, s], g[_A2, s], g[_MU, s], -1.0, out[s, 1])
     return out
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _inv(z):
-    """``1 / z`` as ``conj(z) / |z|^2`` (numba's complex division branches)."""
-    d = 1.0 / (z.real * z.real + z.imag * z.imag)
-    return complex(z.real * d, -z.imag * d)
 
 
 @njit(cache=True, error_model="numpy")
