@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sbcal.inference.priors import Prior
-from sbcal.inference.proposal import BOX_TRIES, MapProposal, fit_map, fit_proposal
+from sbcal.inference.proposal import BOX_TRIES, MapProposal, bend_features, fit_map, fit_proposal
 from sbcal.inference.sampler import POLICY, SamplerConfig, _laplace, sample
 
 MEAN = np.array([1.0, -2.0, 0.5])
@@ -372,3 +372,56 @@ def test_the_screen_calls_the_target_less_and_leaves_the_posterior_exact():
     assert abs(np.cov(a**2, b)[0, 1] / (2 * MildBanana.B) - 1) < 0.25
     twin = sample(MildBanana(), seed=21, config=replace(cfg, workers=2))
     np.testing.assert_array_equal(twin.draws["b"], res.draws["b"])
+
+
+def test_compiled_moves_are_the_numpy_proposals():
+    # the engine's compiled half-step against the numpy formulation: MapProposal's draw and density (bent
+    # and unbent proposals side by side, one ensemble without one), differential evolution's x + gamma (x_a - x_b)
+    from sbcal.inference.move_kernel import half_step, stack_proposals
+    from sbcal.inference.proposal import T_DOF
+    rng = np.random.default_rng(3)
+    ndim, half = 4, 6
+    fit = Banana.draw(rng, 20000)
+    props = [fit_proposal(fit.reshape(2000, 10, 4), 6), fit_proposal(fit.reshape(2000, 10, 4), 0), None]
+    assert props[0].bent >= 1 and props[1].bent == 0
+    coords = rng.standard_normal((3 * 2 * half, ndim))
+    s = np.arange(3 * 2 * half).reshape(3, 2 * half)[:, :half]
+    c = s + half
+    u = rng.random((3, 5, half))
+    u[:, 4, ::2] = 0.0  # every other walker an independence move (where its ensemble has a proposal)
+    u[:, 4, 1::2] = 0.99
+    jitter = rng.standard_normal((3, half))
+    normal, chi2 = rng.standard_normal((3, 1, half, ndim)), rng.chisquare(T_DOF, (3, 1, half))
+    box = np.full(ndim, -np.inf), np.full(ndim, np.inf)
+    q, log_u = half_step(coords, s, c, u, jitter, 0.5, 0.5, normal, chi2, *box, *stack_proposals(props, ndim, T_DOF))
+    for e, p in enumerate(props):
+        for i in range(half):
+            x = coords[s[e, i]]
+            if p is not None and i % 2 == 0:
+                v = normal[e, 0, i] @ p.chol.T * np.sqrt(T_DOF / chi2[e, 0, i])
+                v[p.bent:] += (bend_features(v[None, :p.bent]) @ p.coef)[0] if p.bent else p.coef[0]
+                want = p.mean + v @ np.linalg.inv(p.whiten).T
+                ld = p.log_density(np.stack([x, want]))
+                np.testing.assert_allclose(q[e, i], want, rtol=1e-12, atol=1e-12)
+                assert abs(log_u[e, i] - (np.log(u[e, 3, i]) - ld[0] + ld[1])) < 1e-10
+            else:
+                a = int(u[e, 0, i] * half)
+                b = (a + 1 + int(u[e, 1, i] * (half - 1))) % half
+                assert a != b
+                gamma = 1.0 if u[e, 2, i] < 0.1 else 0.5 * (1 + 1e-5 * jitter[e, i])
+                np.testing.assert_allclose(q[e, i], x + gamma * (coords[c[e, a]] - coords[c[e, b]]), rtol=1e-14)
+                assert log_u[e, i] == np.log(u[e, 3, i])
+    # in a box: the first of the tries inside it (the last where none is), as MapProposal.draw
+    p = props[1]
+    tries = BOX_TRIES + 1
+    normal, chi2 = rng.standard_normal((3, tries, half, ndim)), rng.chisquare(T_DOF, (3, tries, half))
+    lower, upper = p.mean - 0.5 * np.sqrt(np.diag(p.chol @ p.chol.T)), p.mean + np.inf
+    u[:, 4] = 0.0
+    q, _ = half_step(coords, s, c, u, jitter, 0.5, 0.5, normal, chi2, lower, upper,
+                     *stack_proposals([p, p, p], ndim, T_DOF))
+    v = (normal @ p.chol.T) * np.sqrt(T_DOF / chi2)[..., None] + p.coef[0]
+    every = p.mean + v @ np.linalg.inv(p.whiten).T  # (3, tries, half, ndim)
+    inside = np.all(every >= lower, axis=3)
+    first = np.where(inside.any(axis=1), inside.argmax(axis=1), tries - 1)
+    assert 0 < (first > 0).mean() and (first == tries - 1).any()  # the box bites: tries redrawn, some all out
+    np.testing.assert_allclose(q, np.take_along_axis(every, first[:, None, :, None], 1)[:, 0], rtol=1e-12, atol=1e-12)

@@ -64,8 +64,7 @@ class MapProposal:
         """``n`` draws; with a box (``lower``, ``upper``: ``(ndim,)``) each is the first inside it of
         ``BOX_TRIES + 1`` independent tries: the draws inside then follow this density restricted to the box (its
         constant cancels in the Metropolis-Hastings ratio), and one whose tries all fall outside is rejected as
-        before. The tries are drawn in one call: the engine calls this eight times a step, and a loop of
-        redraws cost four times the draw itself."""
+        before (the engine's compiled moves, :mod:`sbcal.inference.move_kernel`, take the same first try inside)."""
         if lower is None:
             return self._draw(rng, n)
         tries = self._draw(rng, n * (BOX_TRIES + 1)).reshape(BOX_TRIES + 1, n, self.mean.size)

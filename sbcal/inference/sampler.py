@@ -54,7 +54,8 @@ from scipy.stats import qmc
 
 from ..core.progress import progress_bar
 from ..core.workers import default_workers, one_blas_thread, process_pool
-from .proposal import MapProposal, fit_proposal
+from .move_kernel import half_step, stack_proposals
+from .proposal import BOX_TRIES, T_DOF, MapProposal, fit_proposal
 from .surrogate import fit_surrogate
 from .stats import convergence
 
@@ -454,52 +455,61 @@ class _Ensembles(emcee.moves.Move):
 
     An ensemble never sees another's walkers and draws every random number from its own generator, so
     the ensembles are independent, independently seeded chains: the same as running them one by one,
-    in any grouping over processes.
+    in any grouping over processes. Each draws its numbers in a few calls a half-step; one compiled loop
+    (:func:`sbcal.inference.move_kernel.half_step`) turns those of all the ensembles into their proposals.
     """
 
     def __init__(self, n_walkers: int, generators, proposals=None, independence: float = 0.0, box=(None, None),
                  screens=None):
         self.n_walkers, self.generators = n_walkers, list(generators)
-        self.proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
+        proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
+        ndim = next((p.mean.size for p in proposals if p is not None), 0)
+        # the proposals as arrays for the compiled moves; independence moves only where there is one
+        self.independent = independence > 0 and ndim > 0
+        self.stack = stack_proposals(proposals if self.independent else [None] * len(proposals), max(ndim, 1), T_DOF)
         self.screens = list(screens) if screens is not None else [None] * len(self.generators)
         self.calls = 0  # parameter sets the target was called on
         self.independence = independence
-        self.box = box  # the prior box (lower, upper) in the sampled coordinates: where a draw is worth proposing
+        # the prior box (lower, upper) in the sampled coordinates: where a draw is worth proposing
+        self.box = tuple(np.full(max(ndim, 1), v) if b is None else np.asarray(b, float)
+                         for b, v in zip(box, (-np.inf, np.inf)))
 
     def propose(self, model, state):
         coords, w = state.coords, self.n_walkers
-        gamma0 = 2.38 / np.sqrt(2 * coords.shape[1])
-        halves = [g * w + rng.permutation(w) for g, rng in enumerate(self.generators)]
+        n_ens, half, ndim = len(self.generators), w // 2, coords.shape[1]
+        tries = BOX_TRIES + 1 if self.independent else 0
+        # each ensemble's random numbers from its own generator, a few calls each, into arrays that one
+        # compiled loop turns into every ensemble's proposals (as numpy, a step was ~40 small calls a half)
+        u = np.empty((n_ens, 6, half))  # the kernel's five uniforms, and stage 2's threshold (with a screen)
+        jitter = np.empty((n_ens, half))
+        normal = np.empty((n_ens, tries, half, ndim))
+        chi2 = np.empty((n_ens, tries, half))
+        perms = np.stack([rng.permutation(w) for rng in self.generators]) + w * np.arange(n_ens)[:, None]
         accepted = np.zeros(len(coords), dtype=bool)
         for h in (0, 1):
-            moving, proposals, log_u = [], [], []
-            for perm, rng, tp, sg in zip(halves, self.generators, self.proposals, self.screens):
-                s, c = (perm[: w // 2], perm[w // 2:]) if h == 0 else (perm[w // 2:], perm[: w // 2])
-                a = rng.integers(len(c), size=len(s))
-                b = (a + rng.integers(1, len(c), size=len(s))) % len(c)  # a pair of distinct walkers
-                gamma = np.where(rng.random(len(s)) < 0.1, 1.0, gamma0 * (1 + 1e-5 * rng.standard_normal(len(s))))
-                q = coords[s] + gamma[:, None] * (coords[c[a]] - coords[c[b]])
-                lu = np.log(rng.random(len(s)))
-                if tp is not None and self.independence > 0:
-                    indep = np.flatnonzero(rng.random(len(s)) < self.independence)
-                    q[indep] = tp.draw(rng, indep.size, *self.box)
-                    # Metropolis-Hastings: the proposal's density ratio moves the threshold (one call, on the
-                    # independence moves alone)
-                    ld = tp.log_density(np.concatenate([coords[s[indep]], q[indep]]))
-                    lu[indep] -= ld[:indep.size] - ld[indep.size:]
-                go = np.ones(len(s), bool)
+            s, c = (perms[:, :half], perms[:, half:]) if h == 0 else (perms[:, half:], perms[:, :half])
+            for e, (rng, sg) in enumerate(zip(self.generators, self.screens)):
+                rng.random(out=u[e, :6 if sg is not None else 5])
+                rng.standard_normal(out=jitter[e])
+                if tries:
+                    rng.standard_normal(out=normal[e])
+                    rng.standard_gamma(T_DOF / 2, out=chi2[e])  # chi-square / 2
+            q, log_u = half_step(coords, s, c, u, jitter, 2.38 / np.sqrt(2 * ndim), self.independence,
+                                 normal, 2 * chi2, *self.box, *self.stack)
+            go = np.ones((n_ens, half), bool)
+            for e, sg in enumerate(self.screens):
                 if sg is not None:  # stage 1 on the screen; stage 2's threshold carries its ratio
-                    ds = sg(np.concatenate([q, coords[s]]))
-                    ds = ds[:len(s)] - ds[len(s):]
-                    go = ds > lu
-                    lu = np.log(rng.random(len(s))) + np.where(go, ds, 0.0)
-                proposals.append(q[go])
-                log_u.append(lu[go])
-                moving.append(s[go])
-            idx, q, log_u = np.concatenate(moving), np.concatenate(proposals), np.concatenate(log_u)
+                    ds = sg(np.concatenate([q[e], coords[s[e]]]))
+                    ds = ds[:half] - ds[half:]
+                    go[e] = ds > log_u[e]
+                    log_u[e] = np.log(u[e, 5]) + np.where(go[e], ds, 0.0)
+            idx, q, log_u = s[go], q[go], log_u[go]
             if not len(idx):
                 continue
-            new_lp, _ = model.compute_log_prob_fn(q)
+            # the target itself, not emcee's wrapper of it (its per-value checks cost as much as the model)
+            new_lp = np.asarray(model.log_prob_fn(q), dtype=float)
+            if np.isnan(new_lp).any():
+                raise ValueError("the log-probability returned NaN")
             self.calls += len(idx)
             ok = new_lp - state.log_prob[idx] > log_u
             coords[idx[ok]], state.log_prob[idx[ok]] = q[ok], new_lp[ok]
