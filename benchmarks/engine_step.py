@@ -20,6 +20,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from sbcal.core.errors import InputError  # noqa: E402
 from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.inference import sampler  # noqa: E402
@@ -28,21 +29,10 @@ from sbcal.inference.move_kernel import half_step, stack_proposals  # noqa: E402
 from sbcal.inference.proposal import BOX_TRIES, T_DOF, MapProposal  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 
-from _timing import best_time  # noqa: E402
+from _timing import best_time, positive_count  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.move_reference import half_step_numpy  # noqa: E402
-
-
-def _count(text: str) -> int:
-    """A positive count (argparse's type: a wrong one is one line and exit 2)."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive whole number, got {text!r}")
-    return n
 
 
 def arguments(ndim, rng, n_ens=4, walkers=24):
@@ -97,8 +87,14 @@ def main(argv=None):
     ap.add_argument("--test", default="0.5-0.5")
     ap.add_argument("--damper", default="damper1")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--repeat", type=_count, default=200)
+    ap.add_argument("--repeat", type=positive_count, default=200)
     args = ap.parse_args(argv)
+    try:
+        damper = resolve_damper(args.damper)
+        data = clean_bench(load_bench(default_bench_path()), dampers=[damper.name])
+        like = test_likelihood(damper, data, args.test)
+    except InputError as exc:  # an unknown damper or test: one line, exit 2
+        ap.error(str(exc))
     rng = np.random.default_rng(args.seed)
 
     print("(a) one half-step, 4 ensembles x 12 moving walkers, 9 box tries each (best of "
@@ -116,9 +112,6 @@ def main(argv=None):
         print(f"    {ndim:2d} parameters: compiled {1e6 * tc:6.1f} us, numpy {1e6 * tn:6.1f} us, "
               f"{tn / tc:4.1f}x; largest difference {err:.1e}")
 
-    damper = resolve_damper(args.damper)
-    data = clean_bench(load_bench(default_bench_path()), dampers=[damper.name])
-    like = test_likelihood(damper, data, args.test)
     config = sampler.SamplerConfig(workers=1)
     print(f"(b) {damper.name} {args.test}'s posterior, one process:")
     compiled, advance = sampler.half_step, sampler._advance

@@ -26,29 +26,18 @@ from sbcal import STANDARD_GRID_HZ, dynamic_stiffness  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from sbcal.model.reference import dynamic_stiffness_loop  # noqa: E402
 
-from _timing import best_time  # noqa: E402
+from _timing import best_time, positive_count  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.fem_reference import impedance_numpy  # noqa: E402
 
 
-def _sets(text: str) -> int:
-    """A positive count (argparse's type: a wrong one is one line and exit 2)."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return n
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sets", type=_sets, default=4096)
-    ap.add_argument("--repeat", type=_sets, default=20)
-    ap.add_argument("--loop-sets", type=_sets, default=30)
-    ap.add_argument("--batches", type=_sets, nargs="+", default=[1, 32, 64], metavar="N",
+    ap.add_argument("--sets", type=positive_count, default=4096)
+    ap.add_argument("--repeat", type=positive_count, default=20)
+    ap.add_argument("--loop-sets", type=positive_count, default=30)
+    ap.add_argument("--batches", type=positive_count, nargs="+", default=[1, 32, 64], metavar="N",
                     help="sets per call of the small-batch rows (default 1 32 64)")
     args = ap.parse_args()
 
