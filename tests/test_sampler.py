@@ -425,3 +425,9 @@ def test_compiled_moves_are_the_numpy_proposals():
     first = np.where(inside.any(axis=1), inside.argmax(axis=1), tries - 1)
     assert 0 < (first > 0).mean() and (first == tries - 1).any()  # the box bites: tries redrawn, some all out
     np.testing.assert_allclose(q, np.take_along_axis(every, first[:, None, :, None], 1)[:, 0], rtol=1e-12, atol=1e-12)
+    # the numpy formulation benchmarks/engine_step.py times (tests/move_reference.py): the same, an ensemble
+    # without a proposal among them
+    from tests.move_reference import half_step_numpy
+    args = (coords, s, c, u, jitter, 0.5, 0.5, normal, chi2, lower, upper, *stack_proposals([p, None, p], ndim, T_DOF))
+    for got, want in zip(half_step(*args), half_step_numpy(*args)):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
