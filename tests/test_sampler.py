@@ -431,3 +431,20 @@ def test_compiled_moves_are_the_numpy_proposals():
     args = (coords, s, c, u, jitter, 0.5, 0.5, normal, chi2, lower, upper, *stack_proposals([p, None, p], ndim, T_DOF))
     for got, want in zip(half_step(*args), half_step_numpy(*args)):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_a_nan_from_the_target_stops_the_run_with_the_reason():
+    # the engine calls the target itself (not emcee's wrapper, which raised on NaN): a NaN log-probability is
+    # a bug in the target, never a rejection
+    class Nan(Gaussian):
+        calls = 0
+
+        def __call__(self, z):
+            out = super().__call__(z)
+            Nan.calls += len(np.atleast_2d(z))
+            if Nan.calls > 6000:  # after the start, in the steps
+                out[0] = np.nan
+            return out
+
+    with pytest.raises(ValueError, match="returned NaN"):
+        sample(Nan(), seed=0, config=FAST)
