@@ -1,13 +1,13 @@
 """The engine's per-step arithmetic compiled (numba): one half-step's proposals for every ensemble at once.
 
-A step of :class:`sbcal.inference.sampler._Ensembles` moves two halves of each of four ensembles; as numpy it
-made ~40 small calls per half, ~600 us a step of per-call overhead, more than a test's likelihood (~400 us
-a step). The random numbers stay numpy's (each ensemble's from its own generator, drawn in a few calls); this
-loop turns them into proposals: differential evolution, or an independence draw from the ensemble's proposal
-(:class:`sbcal.inference.proposal.MapProposal`: a multivariate t with its narrow directions' centres bent along
-its widest ones) with the Metropolis-Hastings threshold moved by the proposal's density ratio. The numpy
-formulation (``MapProposal.draw`` and ``log_density``) is the test's reference. Compiled on first use and
-cached on disk.
+A step of :class:`sbcal.inference.sampler._Ensembles` moves two halves of each of four ensembles; as numpy,
+ensemble by ensemble, it made ~40 small calls a half: ~1.1 ms a step outside the likelihood, more than a test's
+likelihood (~400 us a step). The random numbers stay numpy's (each ensemble's from its own generator, drawn in a
+few calls); this loop turns them into proposals: differential evolution, or an independence draw from the
+ensemble's proposal (:class:`sbcal.inference.proposal.MapProposal`: a multivariate t with its narrow directions'
+centres bent along its widest ones) with the Metropolis-Hastings threshold moved by the proposal's density ratio.
+``MapProposal.draw`` and ``log_density``, and the numpy formulation ``tests/move_reference.py``, are the test's
+references. Compiled on first use and cached on disk.
 """
 
 from __future__ import annotations
