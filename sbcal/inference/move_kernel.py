@@ -93,9 +93,10 @@ def half_step(coords, s, c, u, jitter, gamma0, independence, normal, chi2, lower
         Every walker.
     s, c : ndarray of int, shape (G, H)
         Rows of ``coords``: each ensemble's moving half and the half it moves along.
-    u : ndarray, shape (G, 5, H)
+    u : ndarray, shape (G, >= 5, H)
         Uniforms in [0, 1): walker a, the step to walker b, the jump choice (``gamma = 1`` in a tenth), the
-        acceptance and the independence choice.
+        acceptance and the independence choice (rows beyond the fifth are not read: the engine keeps stage 2's
+        threshold there, for a screen).
     jitter : ndarray, shape (G, H)
         Standard normals: ``gamma``'s 1e-5 relative jitter.
     normal : ndarray, shape (G, T, H, ndim); chi2 : ndarray, shape (G, T, H)
