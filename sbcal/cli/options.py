@@ -65,8 +65,10 @@ def seed_value(text: str) -> int:
 
 
 def parse_set(items) -> dict:
-    """``["EJ=9", "beta=0.3"]`` -> ``{"EJ": 9.0, "beta": 0.3}``, names checked against the model."""
+    """``["EJ=9", "beta=0.3"]`` -> ``{"EJ": 9.0, "beta": 0.3}``, names checked against the model and
+    geometry values against the damper file's plausible ranges (``a1=5`` is 5 m: refused)."""
     from ..model.fem import PARAMETER_NAMES
+    from ..model.damper import plausible
     from ..core._io import finite_number
 
     out = {}
@@ -82,6 +84,7 @@ def parse_set(items) -> dict:
             raise InputError(f"--set {item!r}: {name} must be > 0")
         if name in _NON_NEGATIVE and out[name] < 0:
             raise InputError(f"--set {item!r}: {name} must be >= 0")
+        plausible(name, out[name], f"--set {item!r}", "--set takes SI units")  # as the damper file's geometry
     return out
 
 

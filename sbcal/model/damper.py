@@ -18,7 +18,7 @@ from ..core.errors import InputError, InputWarning
 
 
 __all__ = ["Damper", "GEOMETRY", "load_damper", "parse_damper", "bundled_dampers", "resolve_damper", "FILE_KEYS",
-           "DEFAULT_TOLERANCE_PCT", "with_value", "damper_toml", "checked_number"]
+           "DEFAULT_TOLERANCE_PCT", "with_value", "damper_toml", "checked_number", "plausible"]
 
 GEOMETRY = ("m1", "J1", "a1", "m2", "J2", "a2", "mc", "Jc", "ac", "L1", "L2", "mu")
 """The damper's model geometry by name: masses [kg], inertias [kg m^2], offsets [m] of mass 1, mass 2
@@ -124,10 +124,20 @@ _TABLES = tuple(dict.fromkeys(table for table, *_ in _FIELDS))  # clamp, mass1, 
 
 
 def _plausible(path: str, key: str, field: str, x: float) -> float:
+    return plausible(field, x, f"{path}: key '{key}'", "the file is in SI units")
+
+
+def plausible(field: str, x: float, where: str, units: str = "in SI units") -> float:
+    """``x`` if it lies in the plausible range of the geometry field ``field`` (``"a1"``: an offset within
+    0.5 m; :data:`_PLAUSIBLE`), else an InputError naming ``where`` (a file and key, or a command-line
+    option) and the likely slip, millimetres or grams typed as metres or kilograms. Fields without a
+    range pass."""
+    if field not in _PLAUSIBLE:
+        return x
     lo, hi, unit, what = _PLAUSIBLE[field]
     if not lo <= x <= hi:
-        raise InputError(f"{path}: key '{key}': {x:g} {unit} is outside {lo:g} to {hi:g} {unit}, the plausible range for "
-                         f"{what} (the file is in SI units: millimetres or grams typed as metres or kilograms?)")
+        raise InputError(f"{where}: {x:g} {unit} is outside {lo:g} to {hi:g} {unit}, the plausible range for "
+                         f"{what} ({units}: millimetres or grams typed as metres or kilograms?)")
     return x
 
 
