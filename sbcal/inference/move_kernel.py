@@ -36,9 +36,8 @@ def stack_proposals(proposals, ndim: int, t_dof: float):
     for e, p in enumerate(proposals):
         if p is None:
             continue
-        inv_w_t, inv_chol, norm = p._made
-        mean[e], chol_t[e], unwhiten_t[e], whiten_t[e], unchol_t[e] = p.mean, p.chol.T, inv_w_t, p.whiten.T, inv_chol.T
-        bent[e], log_norm[e] = p.bent, norm
+        mean[e], chol_t[e], unwhiten_t[e], whiten_t[e], unchol_t[e] = p.mean, p.chol.T, p.unwhiten.T, p.whiten.T, p.chol_inverse.T
+        bent[e], log_norm[e] = p.bent, p.log_norm
         coef[e, :p.coef.shape[0], p.bent:] = p.coef
     return present, mean, chol_t, unwhiten_t, whiten_t, unchol_t, bent, coef, log_norm, float(t_dof)
 

@@ -53,6 +53,21 @@ class MapProposal:
         object.__setattr__(self, "_made", (np.linalg.inv(self.whiten).T, np.linalg.inv(self.chol),
                                            -np.log(np.diag(self.chol)).sum()))
 
+    @property
+    def unwhiten(self) -> np.ndarray:
+        """``W^-1`` (ndim, ndim): whitened coordinates back to sampled ones."""
+        return self._made[0].T
+
+    @property
+    def chol_inverse(self) -> np.ndarray:
+        """``chol^-1`` (ndim, ndim): the t's scale undone."""
+        return self._made[1]
+
+    @property
+    def log_norm(self) -> float:
+        """``-log det chol``: :meth:`log_density`'s constant."""
+        return self._made[2]
+
     @classmethod
     def ellipsoid(cls, mean, cov) -> "MapProposal":
         """The t of location ``mean`` and covariance ``cov`` (no bend)."""
