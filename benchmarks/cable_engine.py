@@ -1,6 +1,6 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
-Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned matrix]
+Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix]
        [--engines emcee emcee-t nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
@@ -12,6 +12,10 @@ Posteriors (``--posteriors``):
   ridge);
 - ``zoned``: the in-family ``iwan5_zoned`` of ``benchmarks/zones_identifiability.py`` (damper2, 5 amplitudes
   x 8 runs of the zoned fast model itself; 17 parameters);
+- ``dry-zoned``: damper1's dry cable state on the bundled bench under ``iwan5_zoned``, started as
+  :func:`sbcal.inference.cable_fit.fit_damper_cable` starts it (its ``iwan5`` fit's median, every zone ratio
+  1; that uniform fit, ~40 s, is not in the engine's wall time). One of its ensembles strands in a mode
+  without posterior mass unless the engine starts it again (``docs/cable.md``, "Stranded ensembles");
 - ``matrix``: the misspecified ``zoned_iwan5`` row of ``benchmarks/cable_matrix.py`` (the stubby damper,
   16 runs per test, a log-normal clamp zone no family holds) fitted with ``iwan5_zoned``.
 
@@ -46,7 +50,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
-from sbcal.inference.cable_fit import cable_config, cable_likelihood, sample_cable  # noqa: E402
+from sbcal.inference.cable_fit import (cable_config, cable_likelihood, fit_cable, sample_cable,  # noqa: E402
+                                      zoned_start)
 from sbcal.inference.sampler import SamplerConfig  # noqa: E402
 from sbcal.model.damper import load_damper, resolve_damper  # noqa: E402
 
@@ -66,7 +71,18 @@ class _Counted:
 
 
 def posterior(name: str, seed: int):
-    """``(likelihood, truth)`` of one benchmark posterior (truth: natural values by name, or {})."""
+    """``(likelihood, truth, start)`` of one benchmark posterior (truth: natural values by name, or {};
+    start: the fit's start, natural values by name, or None for the fit's own search)."""
+    like, truth = _posterior(name, seed)
+    if name != "dry-zoned":
+        return like, truth, None
+    d = resolve_damper("damper1")
+    data = clean_bench(load_bench(default_bench_path()))
+    uniform = fit_cable(d, data, [t for t in data.tests(d.name) if not t.endswith("oiled")], "iwan5", seed=0)
+    return like, truth, zoned_start(uniform.median(), uniform.like.prior)
+
+
+def _posterior(name: str, seed: int):
     if name == "uniform":
         d = resolve_damper("damper1")
         data = clean_bench(load_bench(default_bench_path()))
@@ -83,6 +99,10 @@ def posterior(name: str, seed: int):
             bench, truth = make_bench(d, "iwan5", [0.1, 0.2, 0.5, 1.0, 2.0], seed, Path(tmp) / "bench.csv")
         data = clean_bench(bench)
         return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), truth
+    if name == "dry-zoned":
+        d = resolve_damper("damper1")
+        data = clean_bench(load_bench(default_bench_path()))
+        return cable_likelihood(d, data, [t for t in data.tests(d.name) if not t.endswith("oiled")], "iwan5_zoned"), {}
     if name == "matrix":
         from cable_matrix import record_row
         from diagnose_matrix import STUB
@@ -95,14 +115,14 @@ def posterior(name: str, seed: int):
     raise SystemExit(f"unknown posterior {name!r}")
 
 
-def run_emcee(like, seed, steps, workers, bend=True, screen=None) -> dict:
+def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:
         cfg = replace(cfg, bend=0, burn_fraction=SamplerConfig.burn_fraction)
     t0 = time.perf_counter()
-    res = sample_cable(like, seed=np.random.SeedSequence(seed), config=cfg)
+    res = sample_cable(like, seed=np.random.SeedSequence(seed), config=cfg, start=start)
     wall = time.perf_counter() - t0
     c = res.convergence_dict()
     worst_ess = min(c["ess_bulk_min"], c["ess_tail_min"])
@@ -110,7 +130,7 @@ def run_emcee(like, seed, steps, workers, bend=True, screen=None) -> dict:
     return {"wall_s": wall, "converged": res.converged, "r_hat_max": c["r_hat_max"], "ess_min": worst_ess,
             "tau_max": c["tau_max"], "steps": res.n_steps, "ess_per_min": worst_ess / (wall / 60),
             "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200], "calls": res.calls,
-            "calls_per_step": res.calls / res.n_steps,
+            "calls_per_step": res.calls / res.n_steps, "restarts": [list(x) for x in res.restarts],
             "mean": {k: float(np.mean(v)) for k, v in flat.items()}}
 
 
@@ -142,7 +162,7 @@ def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "matrix"])
+    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix"])
     ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
@@ -151,7 +171,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     out = {}
     for name in args.posteriors:
-        like, truth = posterior(name, args.seed)
+        like, truth, start = posterior(name, args.seed)
         print(f"{name}: {like.prior.ndim} parameters, {like.freq_hz.size} lines")
         for engine in args.engines:
             if engine == "nautilus":
@@ -160,10 +180,11 @@ def main(argv=None) -> int:
                       f"{r['ess_per_min']:.1f} ESS/min, log Z {r['log_z']:.1f}")
             else:
                 r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
-                              screen={"emcee-screen": True, "emcee-plain": False}.get(engine))
+                              screen={"emcee-screen": True, "emcee-plain": False}.get(engine), start=start)
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
-                      f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step")
+                      f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step"
+                      + (f", ensembles started again (ensemble, step) {r['restarts']}" if r["restarts"] else ""))
             for k, v in truth.items():
                 if k in r["mean"]:
                     print(f"    {k:22s} mean {r['mean'][k]:.4g}  truth {v:.4g}")

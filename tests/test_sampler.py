@@ -39,7 +39,7 @@ FAST = SamplerConfig(nwalkers=16, max_draws=500, de_population=30, de_generation
 
 def test_known_gaussian_moments_and_diagnostics():
     res = sample(Gaussian(), seed=11, config=FAST)
-    assert res.converged and res.reason == ""
+    assert res.converged and res.reason == "" and res.restarts == ()
     assert res.n_chains == 4 and res.log_likelihood.shape[:2] == res.log_prob.shape
     x = np.column_stack([res.draws[n].ravel() for n in ("a", "b", "c")])
     # the mean's error is sd / sqrt(ESS); 5 of those is a ~1e-6 two-sided tail
@@ -448,3 +448,42 @@ def test_a_nan_from_the_target_stops_the_run_with_the_reason():
 
     with pytest.raises(ValueError, match="returned NaN"):
         sample(Nan(), seed=0, config=FAST)
+
+
+def test_an_ensemble_far_below_the_best_is_stranded_and_chance_is_not():
+    from sbcal.inference.sampler import stranded
+
+    rng = np.random.default_rng(3)
+    ndim = 17  # the zoned cable law's: the line is max(25, 3 * 17) = 51 nats
+    # a converged ensemble's log-densities spread ~ chi2(ndim) / 2 below the mode: sd ~ sqrt(ndim / 2)
+    typical = [-0.5 * rng.chisquare(ndim, (200, 36)) for _ in range(4)]
+    assert stranded(typical, 100, ndim)[0] == []
+    # damper1's dry cable under iwan5_zoned: one ensemble on a short clamp zone, 178 nats below
+    lost = [lp.copy() for lp in typical]
+    lost[1] -= 178.0
+    assert stranded(lost, 100, ndim)[0] == [1]
+    lost[1] += 178.0 - 40.0  # 40 nats below: a mode e^(40/17) = 10x wider every way would weigh as much
+    assert stranded(lost, 100, ndim)[0] == []
+    assert stranded(lost, 100, 4)[0] == [1]  # in 4 dimensions the line is 25 nats
+
+
+def test_a_restarted_ensemble_starts_around_the_best_from_its_own_generator():
+    from sbcal.inference.sampler import _restart
+
+    target = Gaussian()
+    w = 16
+    rng = np.random.default_rng(0)
+    coords = np.vstack([rng.normal(MEAN, 0.5, (w, 3)), rng.normal(MEAN + 12.0, 0.1, (w, 3))])
+    log_prob = target(coords)
+    gens = [np.random.default_rng(s).bit_generator.state for s in (1, 2)]
+    before = [dict(g) for g in gens]
+    c2, l2, g2 = coords.copy(), log_prob.copy(), [dict(g) for g in gens]
+    fresh = _restart(target, coords, log_prob, gens, [1], 0, w)
+    np.testing.assert_array_equal(coords[:w], c2[:w])  # the best ensemble untouched
+    assert gens[0] == before[0] and gens[1] != before[1]  # only the restarted one's generator drew
+    assert np.all(np.abs(coords[w:].mean(axis=0) - MEAN) < 1.0)  # around the best's walkers
+    np.testing.assert_array_equal(log_prob, target(coords))
+    np.testing.assert_allclose(fresh.mean, c2[np.argmax(l2[:w])])
+    again = _restart(target, c2, l2, g2, [1], 0, w)  # the same state, the same walkers
+    np.testing.assert_array_equal(c2, coords)
+    np.testing.assert_array_equal(again.mean, fresh.mean)

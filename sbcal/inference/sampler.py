@@ -35,6 +35,14 @@ Steps:
    The independence proposals change only between rounds, from the past steps, so every round's
    kernel leaves the posterior invariant (a finite adaptation; what it costs in the first rounds is
    what the burn-in and the diagnostics see).
+   **Stranded ensembles**: at the end of a round, an ensemble whose log-densities (median over the round's
+   last half) lie more than ``max(25, 3 ndim)`` nats below the best ensemble's sits in a mode with no
+   posterior mass (to carry as much as the best one it would need to be ``e^3`` wider in every direction):
+   it has not reached the posterior, and no run short of the cap would bring it there (damper1's dry cable
+   under ``iwan5_zoned``: one ensemble of four on a short clamp zone 178 nats below, R-hat 1.54 at 8 000
+   steps). It is started again from its own draw around the best ensemble's walkers, and the run so far
+   becomes warm-up for every ensemble (none of it kept; the cap counts it). At most ``MAX_RESTARTS`` times;
+   the result names the ensembles restarted and when.
 4. **Draws**: each ensemble is a chain; its draws are its walkers' thinned steps, walker after walker
    (thinned by at least half the largest autocorrelation time, and enough to keep ``max_draws``).
 """
@@ -180,6 +188,9 @@ class SampleResult:
     calls : int
         Parameter sets the target was called on by the ensembles' moves (the start's and the stored
         draws' pointwise log-likelihood not counted): with ``config.screen``, fewer than the proposals.
+    restarts : tuple of (int, int)
+        ``(ensemble, step)`` of each stranded ensemble started again (module docstring); the steps
+        before the last are warm-up, not in ``n_steps``.
     """
 
     names: tuple
@@ -200,6 +211,7 @@ class SampleResult:
     wall_s: float
     config: SamplerConfig
     calls: int = 0
+    restarts: tuple = ()
 
     @property
     def n_chains(self) -> int:
@@ -229,7 +241,7 @@ class SampleResult:
         return {"converged": self.converged, "reason": self.reason, "r_hat_max": self.r_hat_max,
                 "ess_bulk_min": self.ess_bulk_min, "ess_tail_min": self.ess_tail_min,
                 "tau_max": float(max(self.tau.values())), "n_steps": self.n_steps, "n_chains": self.n_chains,
-                "policy": self.config.policy()}
+                "restarts": [list(r) for r in self.restarts], "policy": self.config.policy()}
 
     def config_dict(self) -> dict:
         return asdict(self.config)
@@ -427,6 +439,36 @@ def _initial(target, z0, cov, nwalkers, rng) -> np.ndarray:
             return p0
         scale *= 0.7
     raise ValueError("no finite log-probability near the start: the target is -inf around its mode")
+
+
+MAX_RESTARTS = 3
+"""Stranded-ensemble restarts a run allows (module docstring)."""
+
+
+def stranded(per_lp, window: int, ndim: int) -> tuple[list[int], int]:
+    """``(lost, best)``: the ensembles stranded in a mode without posterior mass, whose median log-density
+    over the last ``window`` steps (``per_lp``: one ``(steps, walkers)`` array per ensemble) lies more than
+    ``max(25, 3 ndim)`` nats below that of the best ensemble ``best`` (module docstring)."""
+    med = np.array([np.median(lp[-max(window, 1):]) for lp in per_lp])
+    return [int(e) for e in np.flatnonzero(med < med.max() - max(25.0, 3.0 * ndim))], int(np.argmax(med))
+
+
+def _restart(target, coords, log_prob, gens, lost, best, nwalkers) -> MapProposal:
+    """Walkers of each ensemble in ``lost`` drawn again, from its own generator, around the walkers of the
+    ensemble ``best`` (their best point and covariance); ``coords``, ``log_prob`` and ``gens`` updated in
+    place. Returns the restarted ensembles' first independence proposal (the t of that approximation)."""
+    rows = slice(best * nwalkers, (best + 1) * nwalkers)
+    walkers = coords[rows]
+    z0 = walkers[np.argmax(log_prob[rows])]
+    cov = np.cov(walkers.T) + 1e-12 * np.diag((target.prior.z_upper - target.prior.z_lower) ** 2)
+    for e in lost:
+        rng = np.random.Generator(np.random.PCG64())
+        rng.bit_generator.state = gens[e]
+        mine = slice(e * nwalkers, (e + 1) * nwalkers)
+        coords[mine] = _initial(target, z0, cov, nwalkers, rng)
+        log_prob[mine] = target(coords[mine])
+        gens[e] = rng.bit_generator.state
+    return MapProposal.ellipsoid(z0, _capped_cov(target.prior, cov))
 
 
 # --- the ensembles -------------------------------------------------------------------------
@@ -637,7 +679,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         first = MapProposal.ellipsoid(z0, _capped_cov(prior, cov)) if full else None
         proposals = [first] * config.n_ensembles
         screens = [None] * config.n_ensembles
-        calls = 0
+        calls, spent, restarts = 0, 0, []  # spent: warm-up steps before the last restart
         with process_pool(len(groups)) as pool:
             while True:
                 jobs = []
@@ -668,19 +710,29 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 bar.total = max(need, n)
                 bar.update(block)
                 bar.set_postfix_str(f"tau {max(tau.values()):.0f}")
-                if done or n >= config.max_steps:
+                if done or spent + n >= config.max_steps:
                     break
+                lost, best = stranded(per_lp, block // 2, prior.ndim) if len(restarts) < MAX_RESTARTS else ([], 0)
                 # the next round: to the length the autocorrelation asks for (5 % beyond, as the estimate
                 # grows with the run), or half again when only R-hat or ESS are short
                 more = int(math.ceil(1.05 * need)) - n if need > n else n // 2
                 # at most doubling the run: the estimate of tau falls as the proposals improve
-                block = min(max(more, n // 10, 50), n, config.max_steps - n)
+                block = min(max(more, n // 10, 50), n, config.max_steps - spent - n)
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [fit_proposal(c[burn:], config.bend) for c in per]
                 if config.screen:
                     box = (prior.z_lower, prior.z_upper)
                     screens = [fit_surrogate(c[burn:], lp_e[burn:], box, tp)
                                for c, lp_e, tp in zip(per, per_lp, proposals)]
+                if lost:  # started again; the run so far is every ensemble's warm-up
+                    fresh = _restart(target, coords, log_prob, gens, lost, best, nwalkers)
+                    for e in lost:
+                        proposals[e], screens[e] = fresh, None
+                    restarts.append((tuple(lost), spent + n))
+                    spent += n
+                    chains, lps, n = [], [], 0
+                    accepted[:] = 0
+                    block = min(config.first_steps, config.max_steps - spent)
     natural = prior.to_natural(x.reshape(-1, prior.ndim))
     params = {nm: natural[:, i] for i, nm in enumerate(names)}
     loglik = None
@@ -697,4 +749,5 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         reason="" if done else f"stopped at the {config.max_steps}-step cap: {reason}",
         start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
         wall_s=time.perf_counter() - t0, config=config, calls=int(calls),
+        restarts=tuple((e, step) for lost, step in restarts for e in lost),
     )
