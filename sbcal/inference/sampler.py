@@ -707,7 +707,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 per_lp = [lp_all[:, e * nwalkers:(e + 1) * nwalkers] for e in range(config.n_ensembles)]
                 done, reason, tau, burn, thin, x, lp, diag, need = _assess(per, per_lp, n, names, config,
                                                                            prior.to_natural)
-                bar.total = max(need, n)
+                bar.total = spent + max(need, n)  # warm-up before a restart included
                 bar.update(block)
                 bar.set_postfix_str(f"tau {max(tau.values()):.0f}")
                 if done or spent + n >= config.max_steps:
