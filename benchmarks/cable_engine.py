@@ -73,36 +73,28 @@ class _Counted:
 def posterior(name: str, seed: int):
     """``(likelihood, truth, start)`` of one benchmark posterior (truth: natural values by name, or {};
     start: the fit's start, natural values by name, or None for the fit's own search)."""
-    like, truth = _posterior(name, seed)
-    if name != "dry-zoned":
-        return like, truth, None
-    d = resolve_damper("damper1")
-    data = clean_bench(load_bench(default_bench_path()))
-    uniform = fit_cable(d, data, [t for t in data.tests(d.name) if not t.endswith("oiled")], "iwan5", seed=0)
-    return like, truth, zoned_start(uniform.median(), uniform.like.prior)
-
-
-def _posterior(name: str, seed: int):
     if name == "uniform":
         d = resolve_damper("damper1")
         data = clean_bench(load_bench(default_bench_path()))
         tests = [t for t in data.tests(d.name) if not t.endswith("oiled")]
-        return cable_likelihood(d, data, tests, "iwan5"), {}
+        return cable_likelihood(d, data, tests, "iwan5"), {}, None
     if name == "oiled":
         d = resolve_damper("damper1")
         data = clean_bench(load_bench(default_bench_path()))
-        return cable_likelihood(d, data, [t for t in data.tests(d.name) if t.endswith("oiled")], "iwan5"), {}
+        return cable_likelihood(d, data, [t for t in data.tests(d.name) if t.endswith("oiled")], "iwan5"), {}, None
     if name == "zoned":
         from zones_identifiability import make_bench
         d = resolve_damper("damper2")
         with tempfile.TemporaryDirectory() as tmp:
             bench, truth = make_bench(d, "iwan5", [0.1, 0.2, 0.5, 1.0, 2.0], seed, Path(tmp) / "bench.csv")
         data = clean_bench(bench)
-        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), truth
+        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), truth, None
     if name == "dry-zoned":
         d = resolve_damper("damper1")
         data = clean_bench(load_bench(default_bench_path()))
-        return cable_likelihood(d, data, [t for t in data.tests(d.name) if not t.endswith("oiled")], "iwan5_zoned"), {}
+        dry = [t for t in data.tests(d.name) if not t.endswith("oiled")]
+        uniform = fit_cable(d, data, dry, "iwan5", seed=0)
+        return cable_likelihood(d, data, dry, "iwan5_zoned"), {}, zoned_start(uniform.median(), uniform.like.prior)
     if name == "matrix":
         from cable_matrix import record_row
         from diagnose_matrix import STUB
@@ -111,7 +103,7 @@ def _posterior(name: str, seed: int):
             d = load_damper(Path(tmp) / "stub.toml")
             record_row(d, "zoned_iwan5", 2029, Path(tmp) / "bench.csv")  # cable_matrix.py's seed
             data = clean_bench(load_bench(Path(tmp) / "bench.csv"))
-        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), {}
+        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), {}, None
     raise SystemExit(f"unknown posterior {name!r}")
 
 
