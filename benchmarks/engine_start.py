@@ -3,9 +3,9 @@
 Usage: python benchmarks/engine_start.py [--damper damper1] [--effects fixture_mass sensor_delay ...] [--seed 0]
 
 For each per-test diagnosis target of the damper (the effects' models, every test), the start's points
-(``sbcal.inference.sampler._start_points``: ``START_ASCENTS`` + 1), then the ascents from
+(``sbcal.inference.start.start_points``: ``START_ASCENTS`` + 1), then the ascents from
 those points two ways in the same run, interleaved target by target: one after the other (each its own calls)
-and side by side (``_ascend`` on all of them). Reports the wall time of each, their ratio, the target's calls
+and side by side (``ascend`` on all of them). Reports the wall time of each, their ratio, the target's calls
 and the largest difference of the ends (0 when a batch's rows are evaluated as alone). One process, one BLAS
 thread; run it on an idle machine.
 """
@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.diagnosis.fits import DiagnoseConfig, fit_jobs  # noqa: E402
-from sbcal.inference import sampler  # noqa: E402
+from sbcal.inference import start  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from sbcal.model.extensions import EXTENSIONS  # noqa: E402
 
@@ -57,12 +57,12 @@ def main():
                         config=config, prior_path=None)
         for job in jobs:
             sc = config.sampler(job.target.prior.ndim)
-            starts = sampler._start_points(job.target, np.random.default_rng(job.stream), sc)
+            starts = start.start_points(job.target, np.random.default_rng(job.stream), sc)
             one, side = Counted(job.target), Counted(job.target)
             t0 = time.perf_counter()
-            ends_one = [sampler._ascend(one, z[None])[0] for z in starts]
+            ends_one = [start.ascend(one, z[None])[0] for z in starts]
             t1 = time.perf_counter()
-            ends_side = sampler._ascend(side, starts)
+            ends_side = start.ascend(side, starts)
             t2 = time.perf_counter()
             t_one, t_side = t_one + t1 - t0, t_side + t2 - t1
             calls_one, calls_side = calls_one + one.calls, calls_side + side.calls

@@ -8,7 +8,8 @@ import pytest
 
 from sbcal.inference.priors import Prior
 from sbcal.inference.proposal import BOX_TRIES, MapProposal, bend_features, fit_map, fit_proposal
-from sbcal.inference.sampler import POLICY, SamplerConfig, _laplace, sample
+from sbcal.inference.sampler import POLICY, SamplerConfig, sample
+from sbcal.inference.start import laplace
 
 MEAN = np.array([1.0, -2.0, 0.5])
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, -0.3], [0.0, -0.3, 0.5]])
@@ -213,10 +214,10 @@ class Saddle:
 
 
 def test_laplace_falls_back_to_each_parameters_own_curvature():
-    cov, full = _laplace(Saddle(), np.zeros(2))
+    cov, full = laplace(Saddle(), np.zeros(2))
     assert not full
     np.testing.assert_allclose(cov, np.eye(2), rtol=1e-6)
-    cov, full = _laplace(Gaussian(), MEAN)
+    cov, full = laplace(Gaussian(), MEAN)
     assert full
     np.testing.assert_allclose(cov, COV, rtol=1e-4, atol=1e-8)
 
@@ -274,7 +275,7 @@ class TwoModes:
 
 def test_the_start_finds_the_higher_mode_the_search_misses():
     from scipy.optimize import differential_evolution
-    from sbcal.inference.sampler import _cost, _start
+    from sbcal.inference.start import _cost, find_mode
 
     target = TwoModes()
     lo, hi = target.prior.z_lower, target.prior.z_upper
@@ -284,7 +285,7 @@ def test_the_start_finds_the_higher_mode_the_search_misses():
                                         seed=np.random.default_rng(seed), polish=False, vectorized=True,
                                         updating="deferred", init="sobol")  # FAST's search, alone
         found_by_search += abs(search.x[0] - 4) < 0.1
-        found_by_start += bool(np.all(np.abs(_start(target, None, np.random.default_rng(seed), FAST) - 4) < 0.01))
+        found_by_start += bool(np.all(np.abs(find_mode(target, None, np.random.default_rng(seed), FAST) - 4) < 0.01))
     assert found_by_search <= 6  # 3 of 20 when written: the search alone mostly misses it
     assert found_by_start == 20
 
@@ -304,17 +305,17 @@ class Counting(TwoModes):
 
 
 def test_ascents_side_by_side_end_where_each_alone_does_in_fewer_calls():
-    from sbcal.inference.sampler import _ascend
+    from sbcal.inference.start import ascend
 
     starts = np.random.default_rng(1).uniform(-8, 8, size=(12, 2))
     starts[3] = (3.9, 4.15)  # in the narrow mode's basin
     alone, calls_alone = [], []
     for z in starts:
         target = Counting()
-        alone.append(_ascend(target, z[None])[0])
+        alone.append(ascend(target, z[None])[0])
         calls_alone.append(target.calls)
     together = Counting()
-    ends = _ascend(together, starts)
+    ends = ascend(together, starts)
     for (z1, c1), (z2, c2) in zip(alone, ends):
         # the rows of a batch are evaluated as alone: the same L-BFGS-B path, to the last bit of its arithmetic
         np.testing.assert_allclose(z2, z1, rtol=0, atol=1e-12)
@@ -325,11 +326,11 @@ def test_ascents_side_by_side_end_where_each_alone_does_in_fewer_calls():
 
 
 def test_a_failing_evaluation_reaches_the_caller_of_the_ascents():
-    from sbcal.inference.sampler import _ascend
+    from sbcal.inference.start import ascend
 
     starts = np.random.default_rng(2).uniform(-8, 8, size=(6, 2))
     with pytest.raises(FloatingPointError, match="the model failed"):
-        _ascend(Counting(fail_at=2), starts)  # every thread stops; none waits forever
+        ascend(Counting(fail_at=2), starts)  # every thread stops; none waits forever
 
 
 class MildBanana:

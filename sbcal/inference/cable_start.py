@@ -54,7 +54,13 @@ _START_DE = (6, 60)  # differential evolution: population per dimension, generat
 
 def polish_mode(like: JointLikelihood, z0) -> tuple[np.ndarray, float]:
     """L-BFGS-B ascent of the log-posterior within the box from ``z0`` (value and central-difference
-    gradient in one batched call); ``(z, log-posterior)``."""
+    gradient in one batched call); ``(z, log-posterior)``.
+
+    Not the engine's :func:`sbcal.inference.start.ascend`, which runs a test's ascents side by side: a cable
+    likelihood costs in proportion to the parameter sets of a call, so side by side gains nothing (damper1's
+    dry cable under ``iwan5``, :func:`cable_start`'s 7 candidates beside another job: 17.0 s one after another,
+    25.2 s side by side, whose ends also differ: the engine's one-sided differences on a bound take another
+    path, the best end 10.6 nats lower)."""
     prior = like.prior
     lo, hi = prior.z_lower, prior.z_upper
     h = 1e-6 * (hi - lo)
