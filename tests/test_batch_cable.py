@@ -22,7 +22,8 @@ from sbcal.design.cable_run import is_calibration_damper, load_cable_run
 from sbcal.design.predict import predict
 from sbcal.inference.batch import Lot, _unit_draws
 from sbcal.inference.batch_cable import design_cable, read_cable_lot, write_design_cable
-from sbcal.inference.cable_fit import CableFit, cable_config, cable_likelihood, store_cable
+from sbcal.inference.cable_fit import CableFit, cable_config, cable_likelihood, store_cable, stored_correction
+from sbcal.inference.likelihood import JointLikelihood
 from sbcal.inference.sampler import SampleResult
 from sbcal.inference.stats import loo
 from sbcal.inference.store import cable_dir
@@ -55,11 +56,13 @@ def _bench(root):
     return path
 
 
-def _unit(root, runs, unit, truth, *, seed, law=LAW, converged=True, n_draws=DRAWS, source=None):
+def _unit(root, runs, unit, truth, *, seed, law=LAW, converged=True, n_draws=DRAWS, source=None, correction=None):
     """Store unit ``unit``'s cable fit (state dry) with draws about ``truth``; the EJ_min and delta_EJ draws
     correlated (-0.8) as a stuck strand's rigidity trades against the slipped one's."""
     d = resolve_damper("damper1")
     like = cable_likelihood(d, clean_bench(load_bench(_bench(root))), list(TESTS), law)
+    if correction is not None:  # as a used harmonic refit leaves it
+        like = JointLikelihood(like.likes, like.prior, replace(like.model, correction=correction(like.freq_hz.size)))
     rng = np.random.default_rng(seed)
     z = rng.standard_normal((len(like.prior.names), CHAINS, n_draws))
     z[like.prior.names.index("delta_EJ")] = -0.8 * z[like.prior.names.index("EJ_min")] + 0.6 * z[like.prior.names.index("delta_EJ")]
@@ -95,6 +98,24 @@ def lot(tmp_path_factory):
     for k, (u, t) in enumerate(zip(units, truths)):
         _unit(root, runs, u, t, seed=100 + k)
     return root, runs, units, truths
+
+
+def test_a_harmonic_refits_correction_is_stored_with_its_draws(lot, tmp_path):
+    """A fit made with a per-line correction (a used harmonic refit) stores it beside its draws, line by line
+    as the stored ``freq_hz``; a first-harmonic fit stores none."""
+    root, runs, units, truths = lot
+    assert stored_correction(runs / units[0] / "cable-dry") is None
+    rng = np.random.default_rng(5)
+    made = []
+
+    def correction(n):
+        made.append(np.exp(0.05 * rng.standard_normal(n) + 0.03j * rng.standard_normal(n)))
+        return made[-1]
+
+    _unit(root, tmp_path, "damper1-h", truths[0], seed=3, correction=correction)
+    got = stored_correction(tmp_path / "damper1-h" / "cable-dry")
+    assert got is not None and got.shape == made[0].shape == (2 * STANDARD_GRID_HZ.size,)
+    assert np.array_equal(got, made[0])
 
 
 def test_a_units_draws_keep_a_tests_parameters_together():

@@ -120,3 +120,9 @@ def test_sbcal_cable_refits_with_the_harmonics_and_stores_the_record(distorted, 
     got = like.model(like.damper, like.freq_hz, **like.model_params(med))[0] * correction_at(like, med, lines)[0]
     rms = np.sqrt(np.mean(np.log(np.abs(got / truth_f)) ** 2))
     assert rms < 0.005, rms  # the fixed-point mode's 0.08 %, the plain one's 3.6 % (the fast test above)
+    # the stored correction (the one the draws were fitted with) gives the same curves to the refit's resolution
+    from sbcal.inference.cable_fit import stored_correction
+    c = stored_correction(tmp_path / "runs" / "damper1" / "cable-dry")
+    assert c is not None and c.shape == like.freq_hz.shape
+    stored = like.model(like.damper, like.freq_hz, **like.model_params(med))[0] * c
+    assert np.sqrt(np.mean(np.log(np.abs(stored / truth_f)) ** 2)) < 0.005

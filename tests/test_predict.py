@@ -106,6 +106,32 @@ def _reference(run, damper, freq, amp, **overrides):
             np.quantile(power, q, axis=0))
 
 
+def test_a_harmonic_refits_run_predicts_with_its_correction(tmp_path):
+    """A used harmonic refit's run (its draws fitted with the multi-harmonic solve's correction): every draw's curves
+    are the first-harmonic model's times that correction at the draws' median, solved here independently; a
+    first-harmonic run's are not. At 2 mm the correction moves |f| by several per cent, so a prediction that
+    dropped it could not pass."""
+    from sbcal.model.cable_harmonics import DEFAULT_HARMONICS, HarmonicBalance
+
+    d = resolve_damper("damper1")
+    fit = _fit(tmp_path)
+    for name, refit in (("plain", None), ("refit", {"used": True})):
+        store_cable(replace(fit, refit=refit), tmp_path / name / "damper1" / "cable-dry",
+                    meta={"seed": 0, "damper_values": asdict(d)})
+    amps = [0.2, 2.0]
+    plain, refit = (predict(tmp_path / name / "damper1" / "cable-dry", d, amplitude_mm_pp=amps, model_error=False, seed=1)
+                    for name in ("plain", "refit"))
+    assert refit.summary()["harmonic_correction"] and not plain.summary()["harmonic_correction"]
+    hb = HarmonicBalance(CableModel(law_for(LAW)), harmonics=DEFAULT_HARMONICS)
+    median = {k: np.atleast_1d(np.median(v)) for k, v in fit.result.draws.items()}
+    for i, a in enumerate(amps):
+        st = hb.state(d, STANDARD_GRID_HZ, a, **median)
+        c = np.abs(st.f_uu[0] / st.first_harmonic[0])
+        ratio = refit.stiffness_n_per_m[i, 1] / plain.stiffness_n_per_m[i, 1]  # the same draws: c exactly
+        np.testing.assert_allclose(ratio, c, rtol=1e-9)
+    assert np.abs(c - 1).max() > 0.03  # 2 mm: 9.5 % when written
+
+
 # --- the damper file's tolerances -----------------------------------------------------------------
 
 def test_tolerance_table_is_optional_and_checked(tmp_path):

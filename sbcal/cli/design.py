@@ -87,7 +87,8 @@ def cmd_predict(args) -> int:
                       model_error=not args.no_model_error)
         out = store_prediction(res, meta=meta)
         print(f"{damper.name}: predicted with the {cable.damper} {cable.state} cable ({cable.law}), {res.n_draws} draws"
-              + (" (the calibration damper: its posterior offsets)" if res.own_offsets else ""))
+              + (" (the calibration damper: its posterior offsets)" if res.own_offsets else "")
+              + ("; with its harmonic refit's multi-harmonic correction" if res.harmonic_correction else ""))
         for i, lv in enumerate(res.levels):
             rs = [r for r in res.resonances if r.level == lv]
             text = "; ".join(f"{r.freq_hz[1]:.3g} [{r.freq_hz[0]:.3g}, {r.freq_hz[2]:.3g}] Hz" for r in rs) or "none"

@@ -73,6 +73,12 @@ class CableRun:
     def n_draws(self) -> int:
         return int(next(iter(self.draws.values())).size)
 
+    @property
+    def harmonic(self) -> bool:
+        """Whether the fit is a used harmonic refit's (:mod:`sbcal.inference.harmonic_refit`): its draws were
+        fitted with the multi-harmonic solve's correction, so what is predicted from them carries it too."""
+        return bool((self.summary.get("harmonic_refit") or {}).get("used"))
+
     def constant_amplitudes(self) -> list:
         """The amplitudes [mm p-p] of the calibration's constant-amplitude tests (``A-A``), sorted."""
         out = set()

@@ -91,8 +91,9 @@ def clamp_amplitude(mode: str, level: float, freq_hz):
     return level / (2 * np.pi * f)
 
 
-def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_sets: int) -> dict:
-    """The cable at every (set, line) of one sweep, in chunks of sets (bounded memory).
+def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_sets: int, correction=None) -> dict:
+    """The cable at every (set, line) of one sweep, in chunks of sets (bounded memory); ``correction``
+    (complex, ``(F,)``) multiplies the cable's ``f_uu`` (:func:`harmonic_correction`).
 
     Returns ``fuu`` (S, F) complex (NaN where a set is outside the law's domain or Newton did not
     converge), ``cmax`` (S, F) the largest curvature amplitude along the arms [1/m], ``fold`` and
@@ -101,7 +102,7 @@ def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_set
     from ..inference.cable_fit import CableForward
 
     f = np.asarray(freq_hz, float)
-    fwd = CableForward(law, 2e3 * x0, np.zeros(f.size, dtype=int), tuple(effects))
+    fwd = CableForward(law, 2e3 * x0, np.zeros(f.size, dtype=int), tuple(effects), correction=correction)
     step = max(1, _CHUNK // f.size)
     parts = []
     for start in range(0, n_sets, step):
@@ -111,6 +112,27 @@ def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_set
         parts.append((np.where(conv, fm, np.nan), np.where(conv, st.curvature_range[..., 1], np.nan), st.fold, conv))
     fuu, cmax, fold, conv = (np.concatenate(p, axis=0) for p in zip(*parts))
     return {"fuu": fuu, "cmax": cmax, "fold": fold, "converged": conv}
+
+
+def harmonic_correction(law: str, effects, damper: Damper, freq_hz, x0, params: dict) -> tuple[np.ndarray, int]:
+    """A harmonic refit's correction for one sweep (:mod:`sbcal.inference.harmonic_refit`): the multi-harmonic
+    solve over the first-harmonic model per line at the median of the draws ``params``, made as the refit made
+    its own (one correction for every draw: the refit measured how little it changes across the posterior,
+    ``c_spread``). ``(c, unsolved)``: complex ``(F,)``, 1 where the solve did not converge, and how many such."""
+    from ..inference.cable_fit import CableForward
+
+    f = np.asarray(freq_hz, float)
+    fwd = CableForward(law, 2e3 * x0, np.zeros(f.size, dtype=int), tuple(effects))
+    median = {k: np.atleast_1d(np.nanmedian(v)) for k, v in params.items()}
+    c, solved = fwd.harmonic_correction(damper, f, **median)
+    return c, int((~solved).sum())
+
+
+def on_grid(c, freq_hz, fine) -> np.ndarray:
+    """A per-line correction ``c`` of the lines ``freq_hz`` carried onto the lines ``fine`` (linear in ln f, its
+    log-magnitude and phase; the end values beyond the ends)."""
+    lf, lg = np.log(freq_hz), np.log(fine)
+    return np.exp(np.interp(lg, lf, np.log(np.abs(c))) + 1j * np.interp(lg, lf, np.unwrap(np.angle(c))))
 
 
 def nan_quantiles(x, axis=0) -> np.ndarray:
@@ -341,6 +363,10 @@ class Prediction(FromCable):
         The calibrated curvature range [1/m] (least, largest).
     model_error : dict or None
         The :class:`ModelError` added to the bands (``as_dict()``), None when not.
+    harmonic_correction : bool
+        The run is a used harmonic refit's, and so every draw's curves carry the multi-harmonic solve's
+        correction (:func:`harmonic_correction`, at the draws' median; on the resonance search's grid carried
+        over by :func:`on_grid`).
     """
 
     damper_values: dict
@@ -356,6 +382,7 @@ class Prediction(FromCable):
     resonances: tuple
     calibrated_curvature: tuple
     model_error: dict | None = None
+    harmonic_correction: bool = False
 
     def labels(self) -> list:
         """The ``test`` label of each condition: ``1-1`` (1 mm p-p), ``v0.1`` (0.1 m/s)."""
@@ -384,6 +411,7 @@ class Prediction(FromCable):
             "resonances": [dataclasses.asdict(r) for r in self.resonances],
             "calibrated_curvature": list(self.calibrated_curvature),
             "extrapolated_lines": int(self.extrapolated.sum()), "model_error": self.model_error,
+            "harmonic_correction": self.harmonic_correction,
         }
 
 
@@ -490,9 +518,14 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
     fold, conv = np.empty(shape), np.empty(shape)
     amps = np.empty(shape)
     resonances = []
+    unsolved = 0
     for i, level in enumerate(levels):  # a handful of test conditions; each call is vectorised
         x0 = clamp_amplitude(mode, level, f)
-        r = evaluate(cable.law, effects, damper, f, x0, params, n)
+        c = None
+        if cable.harmonic:  # solved on the sweep's lines, carried onto the resonance search's fine grid
+            c, k = harmonic_correction(cable.law, effects, damper, f, x0, params)
+            unsolved += k
+        r = evaluate(cable.law, effects, damper, f, x0, params, n, correction=c)
         err = errors.at(2e3 * x0) if errors is not None else None
         out["stiffness"][i], out["phase"][i], out["power"][i] = _bands(r["fuu"], x0, f, err, noise)
         with warnings.catch_warnings():
@@ -502,8 +535,11 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         fold[i], conv[i] = r["fold"].mean(axis=0), r["converged"].mean(axis=0)
         amps[i] = 2e3 * x0
         xf = clamp_amplitude(mode, level, fine)
-        rf = evaluate(cable.law, effects, damper, fine, xf, params, n)
+        rf = evaluate(cable.law, effects, damper, fine, xf, params, n, correction=None if c is None else on_grid(c, f, fine))
         resonances += level_resonances(fine, rf["fuu"], xf, level)
+    if unsolved:
+        notes.append(f"the multi-harmonic solve of the harmonic refit's correction did not converge on {unsolved} "
+                     "line(s): left uncorrected (first harmonic)")
     if conv.min() < 1:
         notes.append(f"the cable model did not converge for {100 * (1 - conv.mean()):.2g} % of the (draw, line) "
                      "pairs: left out of the bands")
@@ -515,4 +551,4 @@ def predict(run, damper, *, amplitude_mm_pp=None, velocity_m_s=None, freq_hz=Non
         phase_deg=out["phase"], power_w=out["power"], curvature_max=cmax, extrapolated=extra, fold_share=fold,
         converged_share=conv, resonances=tuple(resonances),
         calibrated_curvature=tuple(float(v) for v in cable.curvature_range),
-        model_error=errors.as_dict() if errors is not None else None)
+        model_error=errors.as_dict() if errors is not None else None, harmonic_correction=cable.harmonic)

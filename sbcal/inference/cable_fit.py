@@ -31,7 +31,7 @@ from ..core.errors import InputError
 from ..core.seeds import job_seed, seed_key
 from ..data.labels import cable_state, state_tests
 from ..model.cable import DEFAULT_SECTIONS, CableModel
-from ..model.cable_harmonics import HarmonicBalance
+from ..model.cable_harmonics import DEFAULT_HARMONICS, HarmonicBalance
 from ..model.damper import Damper
 from ..model.laws import fitted_laws, law_for, zoned
 from ..model.laws.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
@@ -46,7 +46,7 @@ from .stats import elpd_difference, loo
 
 
 __all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
-           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
+           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "stored_correction", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
@@ -147,6 +147,16 @@ class CableForward:
         cable, chain = self._split(params)
         st = HarmonicBalance(self.model, harmonics=harmonics).state(damper, freq_hz, self.amplitude_mm_pp, **cable)
         return st, self._measured(freq_hz, st.f_uu, chain), self._measured(freq_hz, st.first_harmonic, chain)
+
+    def harmonic_correction(self, damper: Damper, freq_hz, *, harmonics: int = DEFAULT_HARMONICS, **params):
+        """The multi-harmonic solve over the first-harmonic model per line at one parameter set (each value of
+        ``params`` of size 1): ``(c, solved)``, ``c = f_uu / f_uu_first`` of the cable (complex, ``(n_lines,)``;
+        1 where the solve did not converge) and ``solved`` (bool, ``(n_lines,)``)."""
+        st, _, _ = self.harmonic_state(damper, freq_hz, harmonics=harmonics, **params)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = st.f_uu[0] / st.first_harmonic[0]
+        solved = st.converged[0] & np.isfinite(ratio)
+        return np.where(solved, ratio, 1.0 + 0j), solved
 
 
 def _prior(law: str, damper: Damper, effects, prior_path=None) -> Prior:
@@ -419,6 +429,10 @@ def store_cable(fit: CableFit, directory, *, meta: dict, comparison: dict | None
         "dims": {"runs": ["obs"], "freq_hz": ["line"], "amplitude_mm_pp": ["line"], "line_test": ["line"],
                  "obs_test": ["obs"], "logmag_mean": ["line"], "phase_mean": ["line"]},
     }
+    c = like.model.correction
+    if c is not None:  # a used harmonic refit's correction, per line: what its draws were fitted with
+        groups["constant_data"].update(correction_re=np.asarray(c).real, correction_im=np.asarray(c).imag)
+        groups["dims"].update(correction_re=["line"], correction_im=["line"])
     d = Path(directory)
     write_inference_data(d / "posterior.nc", groups, attrs={"summary": json.dumps(summary, sort_keys=True)})
     write_json(d / "summary.json", summary, indent=1)
@@ -441,6 +455,21 @@ def read_cable(directory) -> tuple[dict, dict]:
     except (OSError, ValueError, KeyError) as e:
         raise InputError(f"{directory}: cannot read the cable posterior ({e})") from None
     return s, {n: np.asarray(post[n]).ravel() for n in post.data_vars}
+
+
+def stored_correction(directory) -> np.ndarray | None:
+    """The harmonic refit's per-line correction a stored cable fit was fitted with (complex, ``(n_lines,)``, its
+    lines in the order of the stored ``freq_hz``; :mod:`sbcal.inference.harmonic_refit`), or None: the fit is the
+    first-harmonic model's."""
+    from .stats import read_netcdf
+
+    try:
+        const = read_netcdf(Path(directory) / "posterior.nc").constant_data
+    except (OSError, ValueError, KeyError, AttributeError) as e:
+        raise InputError(f"{directory}: cannot read the cable posterior ({e})") from None
+    if "correction_re" not in const:
+        return None
+    return np.asarray(const["correction_re"]) + 1j * np.asarray(const["correction_im"])
 
 
 def zoned_candidate(comparison: dict, partial: bool) -> str | None:

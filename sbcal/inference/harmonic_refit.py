@@ -84,11 +84,8 @@ def correction_at(like: JointLikelihood, params: dict, lines, previous=None) -> 
     solved : ndarray of bool, shape (n_lines,)
         The solve converged.
     """
-    st, _, _ = like.model.harmonic_state(like.damper, like.freq_hz, harmonics=HARMONICS,
-                                         **like.model_params({k: np.atleast_1d(v) for k, v in params.items()}))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = st.f_uu[0] / st.first_harmonic[0]
-    solved = st.converged[0] & np.isfinite(ratio)
+    ratio, solved = like.model.harmonic_correction(like.damper, like.freq_hz, harmonics=HARMONICS,
+                                                   **like.model_params({k: np.atleast_1d(v) for k, v in params.items()}))
     lines = np.asarray(lines, bool)
     kept = np.ones(lines.size, complex) if previous is None else np.asarray(previous, complex)
     return np.where(lines, np.where(solved, ratio, kept), 1.0 + 0j), solved
