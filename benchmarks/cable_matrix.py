@@ -25,7 +25,9 @@ and 2 mm with 4 runs each (``TIME_TESTS``, ``TIME_RUNS``; ~13 s a run): ``time_i
 and ``time_zoned_iwan5`` (the zoned family of ``iwan5``, in-family zones: 0.2 of the arm at the clamp, ``EJ_min`` and
 ``delta_EJ`` x2, slip moment x5; 0.1 at the mass, x1.5, x3.75). Their verdict's curves are the stored fit's with its
 harmonic refit's correction where the refit was used; beside them, the first-harmonic model's own mode (polished from
-the stored median), what a fit without the harmonics gives.
+the stored median), what a fit without the harmonics gives. With 4 runs the run means alone are 1.2-2.7 % rms
+from the noise-free curves (seed 2029; the bench's noise at 4-15 Hz): ``TIME_RUNS`` 16 would put them within the
+target's reach, at ~17 min of recording.
 
 ``--data DIR`` only records: each row's bench CSV into DIR (``<row>.csv``) and, for the zoned rows,
 how far their noise-free curves are from the same cable without zones; no diagnosis. For each data
