@@ -161,6 +161,7 @@ def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws()) -> d
     t_diag = time.perf_counter() - t0
     comparison = verdict.get("law") or {}
     out = {"law": law, "verdict": verdict["verdict"], "verdict_law": comparison.get("best"),
+           "law_settled": comparison.get("settled"), "outscored_by": comparison.get("outscored_by", []),
            "diagnose_s": t_diag, "secondary": verdict.get("secondary"), "families": comparison.get("families", {})}
     if verdict["verdict"] != "strand_slip":
         return out
@@ -232,6 +233,10 @@ def main(argv=None) -> int:
             matched = r["verdict_law"] == data_law and data_law in args.families
             zoned_row = "zoned_" in law
             mag_t, ph_t = (2.0, 1.5) if matched or zoned_row else (4.0, 3.0)
+            if r.get("law_settled") is False:  # compare_families: a family that did not converge scores clearly higher
+                print(f"  verdict law {r['verdict_law']} NOT SETTLED ({', '.join(r['outscored_by'])} clearly higher, not "
+                      "converged): its curves below are not a result: MISSED")
+                ok = False
             if zoned_row and not str(r["verdict_law"]).endswith("_zoned"):
                 print(f"  zoned row: verdict law {r['verdict_law']} is not zoned: MISSED")
                 ok = False

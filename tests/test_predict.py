@@ -570,3 +570,28 @@ def test_cli_warns_on_a_non_converged_posterior(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "warning" in err and "did not converge" in err and "for chi_macro" in err
     assert read_prediction(cable.parent / "predict-damper1-dry").warnings[0].endswith("misplaced")
+
+
+def test_a_law_outscored_by_an_unconverged_family_is_not_settled(tmp_path, capsys):
+    """A converged law that a family which did not converge beats clearly (compare_families: 'outscored_by')
+    is not a result: predict warns, and the characteristic compare draws from it refuses it."""
+    from sbcal.design.characteristic import from_cable
+
+    out = tmp_path / "runs" / "damper1" / "cable-dry"
+    families = {LAW: {"elpd": -100.0, "se": 5.0, "delta_elpd": 0.0, "se_delta": 0.0, "converged": True},
+                "iwan5": {"elpd": 552.0, "se": 9.0, "delta_elpd": 652.0, "se_delta": 52.0, "converged": False}}
+    comparison = {"best": LAW, "converged": True, "settled": False, "higher_not_converged": ["iwan5"],
+                  "outscored_by": ["iwan5"], "families": families, "screened": {}}
+    store_cable(_fit(tmp_path), out, meta={"seed": 0, "made_by": "test",
+                                           "damper_values": asdict(resolve_damper("damper1"))}, comparison=comparison)
+    warning = load_cable_run(out).convergence_warning()
+    assert f"the {LAW} law is not settled: iwan5 (652 +- 52 nats)" in warning and "\n" not in warning
+    assert main(["predict", "--cable", str(out), "--damper", "damper1", "--amplitude", "1", "--draws", "3"]) == 0
+    assert "not settled" in capsys.readouterr().err
+    with pytest.raises(InputError, match="not settled.*its draws are not a result"):
+        from_cable(out, mode="amplitude", level=1.0, freq_hz=[10.0, 20.0], n_draws=3, rng=np.random.default_rng(0))
+    # within noise of the winner the law stands: no warning
+    settled = dict(comparison, settled=True, outscored_by=[])
+    store_cable(_fit(tmp_path), out, meta={"seed": 0, "made_by": "test",
+                                           "damper_values": asdict(resolve_damper("damper1"))}, comparison=settled)
+    assert load_cable_run(out).convergence_warning() == ""

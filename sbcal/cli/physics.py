@@ -67,7 +67,10 @@ def cmd_diagnose(args) -> int:
         from ..diagnosis.diagnose import curves_frame
 
         write_bench(curves_frame(result), args.curves)
-    print(f"{damper.name}: verdict {result['verdict']}" + (f" ({result['law']['best']} law)" if result.get("law") else "")
+    law = result.get("law")
+    unsettled = (f", NOT SETTLED: {', '.join(law['outscored_by'])} scored clearly higher but did not converge"
+                 if law and law["converged"] and not law["settled"] else "")
+    print(f"{damper.name}: verdict {result['verdict']}" + (f" ({law['best']} law{unsettled})" if law else "")
           + f" — {headline(result['remainder'])}")
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
@@ -137,6 +140,7 @@ def cmd_cable(args) -> int:
 
     from ..inference.cable_fit import fit_damper_cable, store_cable
     from ..inference.harmonic_refit import refit_harmonics
+    from ..inference.stats import CLEAR_SE
     from ..model.damper import resolve_damper
 
     damper = resolve_damper(args.damper)
@@ -181,6 +185,10 @@ def cmd_cable(args) -> int:
         if comparison["higher_not_converged"]:
             print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
                   "(a comparison rests on converged posteriors only)")
+        if comparison["converged"] and not comparison["settled"]:
+            print(f"  NOT SETTLED: {', '.join(comparison['outscored_by'])} scored clearly above {best} (by more than "
+                  f"{CLEAR_SE:g} se) but did not converge: the data reject the stored {best} law, whose draws are not "
+                  "a result (predict, span and design warn; compare refuses)")
     return 0
 
 

@@ -120,12 +120,20 @@ class CableRun:
                 "extrapolation not assessed")
 
     def convergence_warning(self) -> str:
-        """'' when the posterior converged, else one line saying which parameters did not."""
+        """'' when the posterior converged and its law is settled, else one line saying which parameters did
+        not converge, or which family that did not converge scores clearly above the stored law
+        (``comparison.outscored_by``, :func:`sbcal.inference.cable_fit.compare_families`)."""
         from ..inference.sampler import POLICY
 
         s = self.summary
         if s.get("converged", False):
-            return ""
+            comparison = s.get("comparison") or {}
+            above = [f"{law} ({comparison['families'][law]['delta_elpd']:.0f} +- "
+                     f"{comparison['families'][law]['se_delta']:.0f} nats)" for law in comparison.get("outscored_by", ())]
+            if not above:
+                return ""
+            return (f"{self.path}: the {self.law} law is not settled: {', '.join(above)} scored clearly higher but did "
+                    "not converge, so the data reject the stored law: the bands may be misplaced")
         bad = [n for n, p in s.get("parameters", {}).items()
                if not (p.get("r_hat", np.inf) <= POLICY["rhat_max"]
                        and min(p.get("ess_bulk", 0), p.get("ess_tail", 0)) >= POLICY["ess_min"])]

@@ -206,8 +206,8 @@ def from_cable(directory, *, mode: str, level: float, freq_hz, n_draws: int = 30
     from .predict import evaluate, model_error_of
 
     cable = load_cable_run(directory)
-    if cable.convergence_warning():
-        raise InputError(f"{cable.path}: {cable.convergence_warning()}; its draws are not a result")
+    if warning := cable.convergence_warning():
+        raise InputError(f"{warning}; its draws are not a result")
     damper = cable.calibration
     if not isinstance(damper, Damper):
         raise InputError(f"{cable.path}/summary.json: no damper_values (a cable run stored before sbcal kept them)")

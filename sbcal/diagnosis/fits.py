@@ -18,7 +18,7 @@ from ..inference.checks import ALPHA, GLOBAL_ALPHA, curve_moments, predictive_ch
 from ..inference.likelihood import JointLikelihood
 from ..inference.priors import composed_prior
 from ..inference.sampler import SamplerConfig, sample
-from ..inference.stats import loo
+from ..inference.stats import CLEAR_SE, loo
 from ..model.extensions import model_for
 from ..model.laws import fitted_laws
 from ..model.laws.zones import ZONED_SUFFIX
@@ -74,7 +74,7 @@ class DiagnoseConfig:
 
     alpha: float = ALPHA
     global_alpha: float = GLOBAL_ALPHA
-    clear_se: float = 4.0
+    clear_se: float = CLEAR_SE
     min_explained: float = 0.8
     laws: tuple = field(default_factory=fitted_laws)
     screen_t: float = 3.0

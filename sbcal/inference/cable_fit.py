@@ -42,7 +42,7 @@ from .distortion import predicted_distortion
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
-from .stats import elpd_difference, loo
+from .stats import CLEAR_SE, elpd_difference, loo
 
 
 __all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
@@ -321,10 +321,18 @@ def compare_families(fits: dict, screened: dict | None = None) -> dict:
     ELPD is above the winner's. When no family converged, the highest ELPD is ``best`` with
     ``converged`` False (a caller must not present it as a result).
 
+    A converged winner is not *settled* when a family that did not converge scores clearly above it
+    (``delta_elpd > CLEAR_SE * se_delta``, the diagnosis's rule, :data:`sbcal.inference.stats.CLEAR_SE`):
+    the data reject the winner's law for one the sampler could not finish, so its draws are not a result
+    either (on a time-domain recording of an ``iwan5`` cable, a converged ``iwan_tail`` 652 +- 52 nats below
+    the unconverged ``iwan5`` missed the truth by 19.6 % at 2 mm: docs/cable.md). Such families are named in
+    ``outscored_by``; ``settled`` is ``converged`` and none.
+
     ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law); ``screened``: the
     families not sampled (:func:`sbcal.inference.cable_start.screen_families`), kept in the result. Returns
-    ``{"best": law, "converged": bool, "higher_not_converged": [law], "families": {law: {"elpd", "se",
-    "delta_elpd", "se_delta", "converged"}}, "screened": {law: {"log_lik_gap", "threshold", "below"}}}``.
+    ``{"best": law, "converged": bool, "settled": bool, "higher_not_converged": [law], "outscored_by": [law],
+    "families": {law: {"elpd", "se", "delta_elpd", "se_delta", "converged"}}, "screened": {law: {"log_lik_gap",
+    "threshold", "below"}}}``.
     """
     pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
     elpd = {law: float(p.sum()) for law, p in pointwise.items()}
@@ -337,7 +345,9 @@ def compare_families(fits: dict, screened: dict | None = None) -> dict:
         out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se,
                     "converged": converged[law]}
     higher = sorted((law for law in elpd if not converged[law] and elpd[law] > elpd[best]), key=lambda k: -elpd[k])
-    return {"best": best, "converged": converged[best], "higher_not_converged": higher, "families": out,
+    outscored = [law for law in higher if out[law]["delta_elpd"] > CLEAR_SE * out[law]["se_delta"]]
+    return {"best": best, "converged": converged[best], "settled": converged[best] and not outscored,
+            "higher_not_converged": higher, "outscored_by": outscored, "families": out,
             "screened": dict(screened or {})}
 
 
@@ -480,12 +490,13 @@ def zoned_candidate(comparison: dict, partial: bool) -> str | None:
     sits on a ridge of trade-offs that the zones remove), so the screen looks at what fits best, and the
     comparison of converged fits (:func:`compare_families`) judges the result. Fitted where the best
     converged family leaves a misfit (``partial``: the qualifier of :mod:`sbcal.inference.checks` in some
-    cable state) or where no family converged; where a converged uniform law explains the runs within
-    their noise, a law that changes along the arm has nothing left to explain.
+    cable state) or where the winner is not settled (none converged, or one that did not scores clearly
+    above it); where a settled uniform law explains the runs within their noise, a law that changes along
+    the arm has nothing left to explain.
     """
     families = comparison["families"]
     top = max(families, key=lambda law: families[law]["elpd"])
-    if top.endswith(ZONED_SUFFIX) or not (partial or not comparison["converged"]):
+    if top.endswith(ZONED_SUFFIX) or not (partial or not comparison["settled"]):
         return None
     law = zoned(top)
     return None if law in families else law

@@ -21,7 +21,7 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=_REFACTOR_NOTICE, category=FutureWarning)
     import arviz as az
 
-__all__ = ["convergence", "Loo", "loo", "elpd_difference", "arviz_version", "inference_data", "read_netcdf"]
+__all__ = ["convergence", "Loo", "loo", "elpd_difference", "CLEAR_SE", "arviz_version", "inference_data", "read_netcdf"]
 
 
 def arviz_version() -> str:
@@ -108,6 +108,12 @@ def loo(log_lik) -> Loo:
     n = out.size
     return Loo(pointwise=out, pareto_k=np.asarray(res.pareto_k, float), elpd=float(out.sum()),
                se=float(np.sqrt(n * np.var(out))) if n > 1 else 0.0)
+
+
+CLEAR_SE = 4.0
+"""A model beats another clearly when its ELPD is above by more than ``CLEAR_SE`` standard errors of the
+difference (:func:`elpd_difference`): the diagnosis's rule for an extension and the cable-law comparison's
+for a family that did not converge."""
 
 
 def elpd_difference(a, b) -> tuple[float, float]:

@@ -299,14 +299,16 @@ def _design_item(d: Path, doc: dict, figs: Path, files: Path) -> dict:
 
 
 def _cables(runs: Path, dname: str) -> list:
-    """A damper's stored cable laws for the first screen: ``[{state, law, converged}]`` from each
-    ``cable-<state>/summary.json`` (the summary only: the figure is the diagnosis section's)."""
+    """A damper's stored cable laws for the first screen: ``[{state, law, converged, outscored_by}]`` from each
+    ``cable-<state>/summary.json`` (the summary only: the figure is the diagnosis section's); ``outscored_by``:
+    the families that did not converge but score clearly above the stored law (it is not settled)."""
     from ..inference.runs import read_summary
 
     out = []
     for state, d in cable_dirs(runs, dname):
         s = read_summary(d) or {}
-        out.append({"state": state, "law": s.get("law", "?"), "converged": s.get("converged")})
+        out.append({"state": state, "law": s.get("law", "?"), "converged": s.get("converged"),
+                    "outscored_by": (s.get("comparison") or {}).get("outscored_by", []) if s.get("converged") else []})
     return out
 
 
