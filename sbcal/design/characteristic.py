@@ -13,11 +13,12 @@ store it is drawn one of two ways (``docs/compare.md``):
   piece is stored with the run (model curves, runs, noise): no model solve.
 * **From the cable law** (``<runs>/<damper>/cable-<state>/``), at any excitation: per draw the
   distributed cable at every line (:func:`sbcal.design.predict.predict`'s solver, the damper's own
-  geometry and offsets, no bench effects), plus the cable fit's model error when its remainder is
+  geometry and offsets, no bench effects), with its harmonic refit's correction where the refit was used
+  (:mod:`sbcal.design.harmonics`), plus the cable fit's model error when its remainder is
   ``partial`` (:func:`sbcal.design.predict.model_error_of`); lines that bend the arms outside the calibrated
   curvature range are marked ``extrapolated`` as ``predict`` marks them.
 
-A posterior that did not converge is refused: its draws are not a result.
+A posterior that did not converge, or whose law is not settled, is refused: its draws are not a result.
 """
 
 from __future__ import annotations
@@ -203,6 +204,7 @@ def from_cable(directory, *, mode: str, level: float, freq_hz, n_draws: int = 30
         No such run, no stored calibration damper, a posterior that did not converge.
     """
     from .cable_run import cable_params, load_cable_run, subset
+    from .harmonics import harmonic_correction
     from .predict import evaluate, model_error_of
 
     cable = load_cable_run(directory)
@@ -215,7 +217,8 @@ def from_cable(directory, *, mode: str, level: float, freq_hz, n_draws: int = 30
     idx = subset(cable, int(n_draws), rng)
     params = cable_params(cable, idx, bench_effects=False, own_offsets=True)
     x0 = clamp_amplitude(mode, level, f)
-    r = evaluate(cable.law, (), damper, f, x0, params, idx.size)
+    c = harmonic_correction(cable.law, (), damper, f, x0, params)[0] if cable.harmonic else None
+    r = evaluate(cable.law, (), damper, f, x0, params, idx.size, correction=c)
     fuu = r["fuu"]
     discrepancy = "none"
     try:

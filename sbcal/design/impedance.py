@@ -10,7 +10,9 @@ pair ``z``, fixed by the seed and the lines, scaled by the discrepancy at the cl
 balance asks for. The same ``z`` at every amplitude of one
 (draw, line) keeps K* a smooth function of the amplitude (the balance's roots need one), and the same
 seed gives the same ``z`` at every damper position and design (common random numbers: comparisons
-between positions or designs are not blurred by the Monte Carlo).
+between positions or designs are not blurred by the Monte Carlo). Where the cable run's harmonic refit was
+used, ``f_uu`` carries its multi-harmonic correction as ``sbcal predict``'s does (:mod:`sbcal.design.harmonics`),
+tabulated over lines and clamp amplitudes and interpolated at the amplitude the balance asks for.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
 from .cable_run import (cable_params, drawn_geometry, drawn_tolerances, is_calibration_damper, load_cable_run, streams,
                         subset, unit_draws)
+from .harmonics import harmonic_table
 from .predict import ModelError, draw_checks, model_error_of
 
 
@@ -53,6 +56,12 @@ class CableImpedance:
         posterior and the tolerances alone.
     error_seed : int
         Seeds the standard-normal pairs of the model error (with the lines' count: one set per band).
+    harmonic : bool
+        The cable run's harmonic refit was used: ``f_uu`` carries its correction, from a
+        :class:`sbcal.design.harmonics.HarmonicTable` at the draws' median over the band first asked for (made
+        then, once per band: the span's clamp amplitude is known only inside its root finder).
+    tables : list of HarmonicTable
+        Those made so far.
     """
 
     damper: Damper
@@ -60,6 +69,8 @@ class CableImpedance:
     params: dict
     model_error: ModelError | None = None
     error_seed: int = 0
+    harmonic: bool = False
+    tables: list = field(default_factory=list, repr=False, compare=False)
     model: object = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -80,7 +91,17 @@ class CableImpedance:
 
     def __call__(self, freq_hz, amplitude_m):
         f, a = self._grid(freq_hz, amplitude_m)
-        return self._with_error(self.model.dynamic_stiffness(self.damper, f, a, **self.params), a)
+        return self._with_error(self.model.dynamic_stiffness(self.damper, f, a, **self.params) * self._harmonic(f, a), a)
+
+    def _harmonic(self, f, amplitude_mm):
+        """The harmonic refit's correction at the lines ``f`` (F,) and amplitudes [mm p-p] (..., F); 1 without."""
+        if not self.harmonic:
+            return 1.0
+        table = next((t for t in self.tables if t.covers(f)), None)
+        if table is None:
+            table = harmonic_table(self.law, (), self.damper, f, self.params)
+            self.tables.append(table)
+        return table.at(f, amplitude_mm)
 
     def stacked(self, freq_hz, amplitude_m):
         """:meth:`__call__` at K trial amplitudes at once: ``amplitude_m`` (K, S or 1, F) [m, 0-peak]
@@ -96,7 +117,7 @@ class CableImpedance:
             n = blk.shape[0]
             params = {name: np.tile(v, n) for name, v in self.params.items()}
             k = self.model.dynamic_stiffness(self.damper, f, blk.reshape(-1, f.size), **params)
-            out.append(self._with_error(k.reshape(blk.shape), blk))
+            out.append(self._with_error(k.reshape(blk.shape) * self._harmonic(f, blk), blk))
         return np.concatenate(out)
 
     def _with_error(self, k, amplitude_mm):
@@ -125,7 +146,8 @@ def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0,
     ``seed``, same draws); draws the cable model cannot evaluate (outside the law's domain) are
     dropped. No bench effects: the span sees the damper itself. With ``model_error`` (default, as
     ``sbcal predict``) the calibration's model discrepancy is added (module docstring) when the run
-    stores one (:attr:`CableImpedance.model_error` says whether it did).
+    stores one (:attr:`CableImpedance.model_error` says whether it did); a used harmonic refit's
+    correction is applied (:attr:`CableImpedance.harmonic`).
     """
     cable = load_cable_run(run)
     damper = damper if isinstance(damper, Damper) else resolve_damper(damper)
@@ -145,4 +167,5 @@ def impedance_from_cable(run, damper, *, n_draws: int = 200, seed: int = 0,
     if not keep.any():
         raise InputError(f"{cable.path}: no posterior draw gives a finite dynamic stiffness")
     params = {k: v[keep] for k, v in params.items()}
-    return CableImpedance(damper=damper, law=cable.law, params=params, model_error=errors, error_seed=int(seed))
+    return CableImpedance(damper=damper, law=cable.law, params=params, model_error=errors, error_seed=int(seed),
+                          harmonic=cable.harmonic)

@@ -61,6 +61,7 @@ import pandas as pd
 
 from ..core.errors import InputError
 from ..model.damper import Damper, resolve_damper
+from .harmonics import harmonic_correction, on_grid
 from .resonance import PROMINENCE, resonance_draws
 from .cable_run import (EXTRAPOLATION_MARGIN, CableRun, cable_params, drawn_geometry, drawn_tolerances,
                         is_calibration_damper, load_cable_run, streams, subset, unit_draws)
@@ -93,7 +94,7 @@ def clamp_amplitude(mode: str, level: float, freq_hz):
 
 def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_sets: int, correction=None) -> dict:
     """The cable at every (set, line) of one sweep, in chunks of sets (bounded memory); ``correction``
-    (complex, ``(F,)``) multiplies the cable's ``f_uu`` (:func:`harmonic_correction`).
+    (complex, ``(F,)``) multiplies the cable's ``f_uu`` (:func:`sbcal.design.harmonics.harmonic_correction`).
 
     Returns ``fuu`` (S, F) complex (NaN where a set is outside the law's domain or Newton did not
     converge), ``cmax`` (S, F) the largest curvature amplitude along the arms [1/m], ``fold`` and
@@ -112,27 +113,6 @@ def evaluate(law: str, effects, damper: Damper, freq_hz, x0, params: dict, n_set
         parts.append((np.where(conv, fm, np.nan), np.where(conv, st.curvature_range[..., 1], np.nan), st.fold, conv))
     fuu, cmax, fold, conv = (np.concatenate(p, axis=0) for p in zip(*parts))
     return {"fuu": fuu, "cmax": cmax, "fold": fold, "converged": conv}
-
-
-def harmonic_correction(law: str, effects, damper: Damper, freq_hz, x0, params: dict) -> tuple[np.ndarray, int]:
-    """A harmonic refit's correction for one sweep (:mod:`sbcal.inference.harmonic_refit`): the multi-harmonic
-    solve over the first-harmonic model per line at the median of the draws ``params``, made as the refit made
-    its own (one correction for every draw: the refit measured how little it changes across the posterior,
-    ``c_spread``). ``(c, unsolved)``: complex ``(F,)``, 1 where the solve did not converge, and how many such."""
-    from ..inference.cable_fit import CableForward
-
-    f = np.asarray(freq_hz, float)
-    fwd = CableForward(law, 2e3 * x0, np.zeros(f.size, dtype=int), tuple(effects))
-    median = {k: np.atleast_1d(np.nanmedian(v)) for k, v in params.items()}
-    c, solved = fwd.harmonic_correction(damper, f, **median)
-    return c, int((~solved).sum())
-
-
-def on_grid(c, freq_hz, fine) -> np.ndarray:
-    """A per-line correction ``c`` of the lines ``freq_hz`` carried onto the lines ``fine`` (linear in ln f, its
-    log-magnitude and phase; the end values beyond the ends)."""
-    lf, lg = np.log(freq_hz), np.log(fine)
-    return np.exp(np.interp(lg, lf, np.log(np.abs(c))) + 1j * np.interp(lg, lf, np.unwrap(np.angle(c))))
 
 
 def nan_quantiles(x, axis=0) -> np.ndarray:
@@ -365,8 +345,8 @@ class Prediction(FromCable):
         The :class:`ModelError` added to the bands (``as_dict()``), None when not.
     harmonic_correction : bool
         The run is a used harmonic refit's, and so every draw's curves carry the multi-harmonic solve's
-        correction (:func:`harmonic_correction`, at the draws' median; on the resonance search's grid carried
-        over by :func:`on_grid`).
+        correction (:mod:`sbcal.design.harmonics`, at the draws' median; on the resonance search's grid carried
+        over by :func:`~sbcal.design.harmonics.on_grid`).
     """
 
     damper_values: dict

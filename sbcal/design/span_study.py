@@ -353,6 +353,11 @@ def span_study(conductor, damper=None, *, cable=None, position_m=None, ends: int
     at = position_m if position_m is not None else placement.best_position_m
     r = energy_balance(c, imp, at, ends=ends, wind=wind, n_freq=n_freq, wave=wave)
     law_range, law_notes = law_range_check(run, imp, r)
+    if imp.harmonic:
+        unsolved = sum(t.unsolved for t in imp.tables)
+        notes.append("the damper's impedance carries the cable run's harmonic refit correction (multi-harmonic solve at "
+                     "the draws' median, tabulated over lines and clamp amplitudes)"
+                     + (f"; the solve did not converge at {unsolved} table point(s): left first-harmonic" if unsolved else ""))
     curvature = tuple(float(v) for v in run.curvature_range) if np.all(np.isfinite(run.curvature_range)) else ()
     return SpanStudy(result=r, placement=placement, damper=dmp.name, cable=str(run.path), cable_damper=run.damper,
                      state=run.state, law=run.law, seed=int(seed), calibrated_amplitude_mm_pp=_calibrated_amplitudes(run),

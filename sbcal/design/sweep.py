@@ -14,7 +14,8 @@ from ..core.errors import InputError
 from ..model.damper import FILE_KEYS, Damper, resolve_damper, with_value
 from .cable_run import (cable_params, drawn_geometry, drawn_tolerances, is_calibration_damper, load_cable_run, streams,
                         subset, unit_draws)
-from .predict import (MODES, FromCable, checked_frequencies, checked_levels, clamp_amplitude, draw_checks, evaluate,
+from .harmonics import TABLE_STEP, harmonic_correction, on_grid
+from .predict import (MODES, RESONANCE_STEP, FromCable, checked_frequencies, checked_levels, clamp_amplitude, draw_checks, evaluate,
                       fine_grid, from_cable_fields, level_resonances, nan_quantiles)
 
 
@@ -146,7 +147,9 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
 
     Every value gets the same posterior draws and the same relative geometry draws (common random
     numbers: the curves against the value are smooth); each value's damper is the base ``damper``
-    with the field replaced (and toleranced like the nominal value). All (value, draw) sets of one
+    with the field replaced (and toleranced like the nominal value). A run whose harmonic refit was used
+    gets its correction per value (:mod:`sbcal.design.harmonics`, at that value's draws' median, solved every
+    :data:`~sbcal.design.harmonics.TABLE_STEP` in ln f and carried onto the search grid). All (value, draw) sets of one
     test condition are solved in one vectorised pass.
 
     Parameters
@@ -196,9 +199,15 @@ def sweep(run, damper, field_key: str, values, *, amplitude_mm_pp=None, velocity
     extra = np.zeros((nv, nl), dtype=bool)
     fold = np.zeros((nv, nl))
     conv = np.ones((nv, nl))
+    coarse = fine[::max(1, int(round(TABLE_STEP / RESONANCE_STEP)))]  # the correction's lines: carried onto fine
     for i, level in enumerate(levels):
         xf = clamp_amplitude(mode, level, fine)
         r = evaluate(cable.law, effects, damper, fine, xf, params, n * nv)
+        if cable.harmonic:  # per design value, at its draws' median (sbcal.design.harmonics)
+            xc = clamp_amplitude(mode, level, coarse)
+            c = [harmonic_correction(cable.law, effects, d, coarse, xc, {k: v[j * n:(j + 1) * n] for k, v in params.items()})[0]
+                 for j, d in enumerate(designs)]
+            r["fuu"] = (r["fuu"].reshape(nv, n, -1) * on_grid(np.array(c), coarse, fine)[:, None]).reshape(nv * n, -1)
         power = (0.5 * 2 * np.pi * fine * r["fuu"].imag * xf**2).reshape(nv, n, fine.size)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
