@@ -223,7 +223,8 @@ def main(argv=None) -> int:
                   f"diagnose {r['diagnose_s']:.0f} s")
             for family, f in r["families"].items():
                 print(f"  {family:9s} ELPD {f['elpd']:10.1f}, best family - this one {f['delta_elpd']:8.1f} +- "
-                      f"{f['se_delta']:6.1f}, converged {f.get('converged')}")
+                      f"{f['se_delta']:6.1f}, converged {f.get('converged')} (R-hat max {f.get('r_hat_max')}, "
+                      f"ESS min {f.get('ess_min')}, tau max {f.get('tau_max')})")
             if r["verdict"] != "strand_slip":
                 ok = False
                 continue

@@ -6,7 +6,7 @@ import pytest
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import default_bench_path, load_bench
 from sbcal.data.labels import state_tests
-from sbcal.inference.cable_fit import cable_likelihood, cable_start, compared_laws
+from sbcal.inference.cable_fit import CableFit, cable_likelihood, cable_start, compared_laws
 from sbcal.model.laws import fitted_laws
 
 # Where the engine's own start (one differential-evolution search, seed 1) stopped on damper1's dry
@@ -81,6 +81,19 @@ def test_a_family_that_did_not_converge_cannot_win():
     assert zoned_candidate(near, partial=False) is None
     assert zoned_candidate(near, partial=True) == "iwan_tail_zoned"
     assert zoned_candidate(none, partial=False) == "iwan_tail_zoned"
+    # what did not converge says how far it was, the worst over its states (stand-ins without numbers say nothing)
+    assert c["families"]["iwan5"]["r_hat_max"] is None
+    from types import SimpleNamespace
+
+    from sbcal.cli.physics import _unconverged_words
+    ran = lambda conv, r, e, t: SimpleNamespace(converged=conv, r_hat_max=r, ess_bulk_min=e, ess_tail_min=e + 5,  # noqa: E731
+                                                tau={"EJ_min": 3.0, "chi_micro": t}, reason="" if conv else f"tau {t}")
+    two = {"iwan5": {s: CableFit(damper="d", state=s, law="iwan5", tests=(), effects=(), like=None, result=r,
+                                 loo=SimpleNamespace(pointwise=base)) for s, r in
+                     (("dry", ran(True, 1.004, 900.0, 40.0)), ("oiled", ran(False, 1.03, 310.0, 282.0)))}}
+    w = compare_families(two)["families"]["iwan5"]
+    assert (w["r_hat_max"], w["ess_min"], w["tau_max"], w["reason"]) == (1.03, 310.0, 282.0, "tau 282.0")
+    assert _unconverged_words(w) == "not converged: R-hat 1.030, ESS 310, tau 282"
     fits["iwan_tail_zoned"] = {"dry": _fake_fit("iwan_tail_zoned", base + 4.0, True)}
     again = compare_families(fits)
     assert again["best"] == "iwan_tail_zoned" and zoned_candidate(again, partial=True) is None

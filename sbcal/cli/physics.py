@@ -176,7 +176,7 @@ def cmd_cable(args) -> int:
         print(f"  stored in {out}/")
     if compared:
         print("  families by PSIS-LOO (summed over the cable states): " + "; ".join(
-            f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" + ("" if v["converged"] else " (not converged)")
+            f"{law} {v['delta_elpd']:.1f} +- {v['se_delta']:.1f}" + ("" if v["converged"] else f" ({_unconverged_words(v)})")
             for law, v in comparison["families"].items())
             + f" (best: {best}" + ("" if comparison["converged"] else ", NOT CONVERGED: no family converged") + ")")
         for law, v in comparison["screened"].items():
@@ -190,6 +190,13 @@ def cmd_cable(args) -> int:
                   f"{CLEAR_SE:g} se) but did not converge: the data reject the stored {best} law, whose draws are not "
                   "a result (predict, span and design warn; compare refuses)")
     return 0
+
+
+def _unconverged_words(v: dict) -> str:
+    """'not converged' with a family's worst R-hat, ESS and tau where the comparison has them."""
+    if v.get("r_hat_max") is None:
+        return "not converged"
+    return f"not converged: R-hat {v['r_hat_max']:.3f}, ESS {v['ess_min']:.0f}, tau {v['tau_max']:.0f}"
 
 
 def _refit_words(r: dict) -> str:

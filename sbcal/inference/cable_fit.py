@@ -312,6 +312,19 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
                     like=like, loo=loo(res.log_likelihood))
 
 
+def _worst_state(by_state: dict) -> dict:
+    """A family's convergence over its cable states, the worst of each: ``r_hat_max``, ``ess_min`` (bulk or
+    tail), ``tau_max`` [steps], and the reason of the first state that did not converge (None where no result
+    says: a stand-in's)."""
+    res = [f.result for _, f in sorted(by_state.items())]
+    if not all(hasattr(r, "r_hat_max") for r in res):
+        return {"r_hat_max": None, "ess_min": None, "tau_max": None, "reason": None}
+    return {"r_hat_max": float(max(r.r_hat_max for r in res)),
+            "ess_min": float(min(min(r.ess_bulk_min, r.ess_tail_min) for r in res)),
+            "tau_max": float(max(max(r.tau.values()) for r in res)),
+            "reason": next((r.reason for r in res if not r.converged), None)}
+
+
 def compare_families(fits: dict, screened: dict | None = None) -> dict:
     """The best family by PSIS-LOO summed over cable states, among those whose posterior converged in
     every state, and each family's difference to it.
@@ -331,8 +344,9 @@ def compare_families(fits: dict, screened: dict | None = None) -> dict:
     ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law); ``screened``: the
     families not sampled (:func:`sbcal.inference.cable_start.screen_families`), kept in the result. Returns
     ``{"best": law, "converged": bool, "settled": bool, "higher_not_converged": [law], "outscored_by": [law],
-    "families": {law: {"elpd", "se", "delta_elpd", "se_delta", "converged"}}, "screened": {law: {"log_lik_gap",
-    "threshold", "below"}}}``.
+    "families": {law: {"elpd", "se", "delta_elpd", "se_delta", "converged", "r_hat_max", "ess_min", "tau_max",
+    "reason"}}, "screened": {law: {"log_lik_gap", "threshold", "below"}}}`` (the convergence numbers the worst over
+    the family's cable states).
     """
     pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
     elpd = {law: float(p.sum()) for law, p in pointwise.items()}
@@ -343,7 +357,7 @@ def compare_families(fits: dict, screened: dict | None = None) -> dict:
     for law, p in pointwise.items():
         d, se = elpd_difference(pointwise[best], p)
         out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se,
-                    "converged": converged[law]}
+                    "converged": converged[law], **_worst_state(fits[law])}
     higher = sorted((law for law in elpd if not converged[law] and elpd[law] > elpd[best]), key=lambda k: -elpd[k])
     outscored = [law for law in higher if out[law]["delta_elpd"] > CLEAR_SE * out[law]["se_delta"]]
     return {"best": best, "converged": converged[best], "settled": converged[best] and not outscored,
