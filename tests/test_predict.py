@@ -645,6 +645,11 @@ def test_a_law_outscored_by_an_unconverged_family_is_not_settled(tmp_path, capsy
     assert "not settled" in capsys.readouterr().err
     with pytest.raises(InputError, match="not settled.*its draws are not a result"):
         from_cable(out, mode="amplitude", level=1.0, freq_hz=[10.0, 20.0], n_draws=3, rng=np.random.default_rng(0))
+    # a hand-edited comparison that names a family it does not hold still gives one line, no traceback
+    summary = json.loads((out / "summary.json").read_text())
+    summary["comparison"]["outscored_by"] = ["dahl"]
+    (out / "summary.json").write_text(json.dumps(summary))
+    assert f"the {LAW} law is not settled: dahl scored" in load_cable_run(out).convergence_warning()
     # within noise of the winner the law stands: no warning
     settled = dict(comparison, settled=True, outscored_by=[])
     store_cable(_fit(tmp_path), out, meta={"seed": 0, "made_by": "test",

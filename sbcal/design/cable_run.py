@@ -128,8 +128,10 @@ class CableRun:
         s = self.summary
         if s.get("converged", False):
             comparison = s.get("comparison") or {}
-            above = [f"{law} ({comparison['families'][law]['delta_elpd']:.0f} +- "
-                     f"{comparison['families'][law]['se_delta']:.0f} nats)" for law in comparison.get("outscored_by", ())]
+            families = comparison.get("families") or {}
+            above = [f"{law} ({families[law]['delta_elpd']:.0f} +- {families[law]['se_delta']:.0f} nats)"
+                     if isinstance(families.get(law), dict) and {"delta_elpd", "se_delta"} <= set(families[law])
+                     else str(law) for law in comparison.get("outscored_by") or ()]
             if not above:
                 return ""
             return (f"{self.path}: the {self.law} law is not settled: {', '.join(above)} scored clearly higher but did "
