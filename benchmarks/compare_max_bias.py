@@ -58,9 +58,16 @@ def pair(rng, chol, lines, draws: int = 1000, replicates: int = 150) -> tuple[fl
     return p, float(1 / (1 + np.exp(-(b[0] + b[1] * _logit(p))))), bool(_within(truth))
 
 
+def _positive(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text}: must be >= 1")
+    return n
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", type=int, default=1500)
+    ap.add_argument("--pairs", type=_positive, default=1500)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     rng = np.random.default_rng(args.seed)
