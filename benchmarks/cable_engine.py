@@ -114,19 +114,14 @@ CHI_REF = 1e-4
 """The least curvature amplitude [1/m] the benchmark posteriors' benches reach, about (docs/cable.md)."""
 
 
-def _power_integral(a, b, c):
-    p = c + 1.0
-    safe = np.where(np.abs(p) < 1e-9, 1.0, p)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(np.abs(p) < 1e-9, np.log(b / a), (b ** p - a ** p) / safe)
-
-
 def log_share(natural: dict, chi_ref: float = CHI_REF):
     """ln of the share of an ``iwan5`` (middle) law's stiffness drop held by wires slipping above ``chi_ref``:
     ``(frac + macro_ratio) / (1 + macro_ratio)``, ``frac`` the share of the density ``phi^c`` on
     ``(chi_micro, chi_macro)`` above ``chi_ref`` (the point mass at ``chi_macro`` is all above it)."""
+    from sbcal.model.laws.iwan import _power_integral  # the law's own: int_x1^x2 x^(q-1) dx
+
     cm, cmax, c, mr = (natural[k] for k in ("chi_micro", "chi_macro", "density_exponent", "macro_ratio"))
-    frac = _power_integral(np.clip(chi_ref, cm, cmax), cmax, c) / _power_integral(cm, cmax, c)
+    frac = _power_integral(np.clip(chi_ref, cm, cmax), cmax, c + 1.0) / _power_integral(cm, cmax, c + 1.0)
     return np.log((frac + mr) / (1 + mr))
 
 
