@@ -15,7 +15,7 @@ for the reliability of P(within). Per seed the *before* recording is shared by i
     python benchmarks/compare_matrix.py --first 20 --seeds 60 --reliability-only --keep /tmp/keep >> benchmarks/results_compare_matrix.jsonl
 
 (seeds 50-79 are the held-out set: run once, after the method was fixed). ``--keep DIR`` keeps every
-recording and calibration; run again with the same DIR, only the comparisons are redone (about 12 minutes
+recording and calibration; run again with the same DIR, only the comparisons are redone (12-15 minutes
 for all 880 pairs on 2 cores instead of about 45), which is how a change of the characteristic's posterior is
 measured on the same pairs.
     python benchmarks/compare_matrix.py --table benchmarks/results_compare_matrix.jsonl
