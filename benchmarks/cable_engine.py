@@ -179,7 +179,11 @@ def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, sh
 
         target = Sheared(like)
         s_start, s_sample = fit_streams(np.random.SeedSequence(seed))
-        z0 = like.prior.z_of(start)[0] if isinstance(start, dict) else cable_start(like, np.random.default_rng(s_start))
+        if isinstance(start, dict):  # sample_cable's rule: a parameter the start does not name at its box's middle
+            middle = like.prior.to_natural(((like.prior.z_lower + like.prior.z_upper) / 2)[None])[0]
+            z0 = like.prior.z_of({n: start.get(n, m) for n, m in zip(like.prior.names, middle)})[0]
+        else:
+            z0 = cable_start(like, np.random.default_rng(s_start))
         res = sample(target, seed=s_sample, config=cfg, start=target.to_outer(z0)[0])
     else:
         res = sample_cable(like, seed=np.random.SeedSequence(seed), config=cfg, start=start)
