@@ -1,7 +1,7 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
 Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix]
-       [--engines emcee emcee-t emcee-screen emcee-plain emcee-shear nautilus]
+       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
 Posteriors (``--posteriors``):
@@ -26,9 +26,9 @@ Engines (``--engines``), each to sbcal's convergence rule where it has one:
   directions, half of each chain burnt), capped at ``--steps`` steps per ensemble;
 - ``emcee-t``: the same engine with the t alone and a fifth burnt (a test's fit; the cable fits' engine
   before the bend): the baseline of ``emcee``;
-- ``emcee-shear``: ``emcee`` on the same posterior in sheared coordinates (:class:`Sheared`: ``ln delta_EJ``
-  replaced by the log of the stiffness drop held by the wires that slip above the bench's least curvature; a
-  map of Jacobian 1, so the posterior is the same), from the same start and streams: an Iwan law only;
+- ``emcee-unsheared``: ``emcee`` on the same posterior in the coordinates of the boxes alone, from the same
+  start and streams: the cable fit before :mod:`sbcal.inference.cable_coords` (``ln delta_EJ`` sampled as
+  it is, not with the log of the share of the law's drop the bench sees added), the baseline of ``emcee``;
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -110,89 +110,29 @@ def posterior(name: str, seed: int):
     raise SystemExit(f"unknown posterior {name!r}")
 
 
-CHI_REF = 1e-4
-"""The least curvature amplitude [1/m] the benchmark posteriors' benches reach, about (docs/cable.md)."""
-
-
-def log_share(natural: dict, chi_ref: float = CHI_REF):
-    """ln of the share of an ``iwan5`` (middle) law's stiffness drop held by wires slipping above ``chi_ref``:
-    ``(frac + macro_ratio) / (1 + macro_ratio)``, ``frac`` the share of the density ``phi^c`` on
-    ``(chi_micro, chi_macro)`` above ``chi_ref`` (the point mass at ``chi_macro`` is all above it)."""
-    from sbcal.model.laws.iwan import _power_integral  # the law's own: int_x1^x2 x^(q-1) dx
-
-    cm, cmax, c, mr = (natural[k] for k in ("chi_micro", "chi_macro", "density_exponent", "macro_ratio"))
-    frac = _power_integral(np.clip(chi_ref, cm, cmax), cmax, c + 1.0) / _power_integral(cm, cmax, c + 1.0)
-    return np.log((frac + mr) / (1 + mr))
-
-
-class Sheared:
-    """An Iwan law's cable posterior in sheared coordinates: ``ln delta_EJ`` replaced by
-    ``u = ln delta_EJ + log_share`` (the drop the bench's curvatures see), every other coordinate as it is.
-
-    The map is triangular with unit diagonal (Jacobian 1), so the density in ``u`` is the same posterior;
-    ``u``'s box is widened below by e^12 and the inner likelihood refuses a ``delta_EJ`` outside its own box.
-    A trial of the idea that the micro-slip onset trades with ``delta_EJ`` along a ridge the bench cannot
-    see (docs/cable.md, "The engine on the zoned posterior"); not the package's coordinates."""
-
-    def __init__(self, like, chi_ref: float = CHI_REF):
-        from sbcal.inference.priors import Prior
-
-        self.like, self.chi_ref = like, chi_ref
-        p = like.prior
-        self.i = p.names.index("delta_EJ")
-        lower = p.lower.copy()
-        lower[self.i] *= np.exp(-12.0)
-        self.prior = Prior(paramset=p.paramset, names=p.names, log_scale=p.log_scale, lower=lower, upper=p.upper)
-
-    def _shift(self, z):
-        return log_share(self.like.prior.params(z), self.chi_ref)
-
-    def to_inner(self, z):
-        z = np.array(np.atleast_2d(z), float)
-        z[:, self.i] -= self._shift(z)  # the share does not depend on delta_EJ: the inverse is explicit
-        return z
-
-    def to_outer(self, z):
-        z = np.array(np.atleast_2d(z), float)
-        z[:, self.i] += self._shift(z)
-        return z
-
-    def __call__(self, z):
-        zi = self.to_inner(z)
-        lp = np.full(len(zi), -np.inf)
-        ok = np.isfinite(zi).all(axis=1)
-        if ok.any():
-            lp[ok] = self.like(zi[ok])
-        return lp
-
-
-def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=False) -> dict:
+def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:
         cfg = replace(cfg, bend=0, burn_fraction=SamplerConfig.burn_fraction)
     t0 = time.perf_counter()
-    if shear:  # sample_cable's start and streams, the engine on the sheared target
+    if not shear:  # sample_cable before its sheared coordinates: the start and streams, the engine on like itself
         from sbcal.inference.cable_start import cable_start, fit_streams
         from sbcal.inference.sampler import sample
 
-        target = Sheared(like)
         s_start, s_sample = fit_streams(np.random.SeedSequence(seed))
-        if isinstance(start, dict):  # sample_cable's rule: a parameter the start does not name at its box's middle
-            middle = like.prior.to_natural(((like.prior.z_lower + like.prior.z_upper) / 2)[None])[0]
-            z0 = like.prior.z_of({n: start.get(n, m) for n, m in zip(like.prior.names, middle)})[0]
-        else:
-            z0 = cable_start(like, np.random.default_rng(s_start))
-        res = sample(target, seed=s_sample, config=cfg, start=target.to_outer(z0)[0])
+        if isinstance(start, dict):
+            start = {n: start.get(n, m) for n, m in like.prior.middle().items()}
+        elif start is None:
+            start = cable_start(like, np.random.default_rng(s_start))
+        res = sample(like, seed=s_sample, config=cfg, start=start)
     else:
         res = sample_cable(like, seed=np.random.SeedSequence(seed), config=cfg, start=start)
     wall = time.perf_counter() - t0
     c = res.convergence_dict()
     worst_ess = min(c["ess_bulk_min"], c["ess_tail_min"])
     flat = dict(res.flat())
-    if shear:  # the draws' delta_EJ column holds exp(u): back to delta_EJ
-        flat["delta_EJ"] = flat["delta_EJ"] / np.exp(log_share(flat))
     return {"wall_s": wall, "converged": res.converged, "r_hat_max": c["r_hat_max"], "ess_min": worst_ess,
             "tau_max": c["tau_max"], "steps": res.n_steps, "ess_per_min": worst_ess / (wall / 60),
             "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200], "calls": res.calls,
@@ -229,7 +169,7 @@ def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix"])
-    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-shear",
+    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-unsheared",
                                                                     "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
@@ -248,7 +188,7 @@ def main(argv=None) -> int:
             else:
                 r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
                               screen={"emcee-screen": True, "emcee-plain": False}.get(engine), start=start,
-                              shear=engine == "emcee-shear")
+                              shear=engine != "emcee-unsheared")
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
                       f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step"

@@ -36,6 +36,7 @@ from ..model.damper import Damper
 from ..model.laws import fitted_laws, law_for, zoned
 from ..model.laws.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
 from .cable_start import cable_start, fit_streams, polish_mode, screen, screen_families, unscreened
+from .cable_coords import seen_share_target
 from .calibrate import likelihood_for
 from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, materiality, predictive_check, qualifier
 from .distortion import predicted_distortion
@@ -245,7 +246,9 @@ def cable_seed(seed, damper: str, state: str, law: str, effects=()) -> np.random
 
 def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config: SamplerConfig | None = None,
                  start=None, progress: str | None = None):
-    """The cable-law fit, the one every command uses: :func:`cable_start`, then the engine.
+    """The cable-law fit, the one every command uses: :func:`cable_start`, then the engine, in the coordinates
+    of :mod:`sbcal.inference.cable_coords` (``delta_EJ`` sheared by the share of the law's drop the bench sees,
+    the reference curvature at the start; the draws are stored in ``delta_EJ``).
 
     Parameters
     ----------
@@ -257,7 +260,7 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
         Default :func:`cable_config`.
     start : dict or ndarray, optional
         Natural values by name to polish the mode from (a parameter it does not name starts at the middle
-        of its box, in the sampled coordinate), or a start in sampled coordinates ``(ndim,)`` made with
+        of its box, in its own scale), or a start in the coordinates of ``like.prior`` ``(ndim,)`` made with
         this fit's own start stream (:func:`sbcal.inference.cable_start.screen`); default :func:`cable_start`.
     progress : str, optional
 
@@ -266,13 +269,15 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
     SampleResult
     """
     s_start, s_sample = fit_streams(seed)
+    prior = like.prior
     if start is None:
         start = cable_start(like, np.random.default_rng(s_start))
-    elif isinstance(start, dict):
-        prior = like.prior
-        middle = prior.to_natural(((prior.z_lower + prior.z_upper) / 2)[None])[0]
-        start = {n: float(start.get(n, m)) for n, m in zip(prior.names, middle)}
-    return sample(like, seed=s_sample, config=config or cable_config(like.prior.ndim), start=start, progress=progress)
+    if isinstance(start, dict):
+        start = {n: float(start.get(n, m)) for n, m in prior.middle().items()}
+    else:
+        start = dict(zip(prior.names, prior.to_natural(np.asarray(start, float)[None])[0]))
+    target = seen_share_target(like, start)
+    return sample(target, seed=s_sample, config=config or cable_config(prior.ndim), start=start, progress=progress)
 
 
 def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), workers: int = 2,

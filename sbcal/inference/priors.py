@@ -3,7 +3,9 @@
 A :class:`Prior` is the product of independent uniform or log-uniform boxes over the parameters
 of one named set (``theta1`` ...) plus the likelihood's model-error scales, reached by name. The sampler works in
 coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter and
-``z = log(x)`` for a log-uniform one, so the log-prior is 0 inside the box and ``-inf`` outside.
+``z = log(x)`` for a log-uniform one, so the log-prior is 0 inside the box and ``-inf`` outside. A
+:class:`Shear` may move one log coordinate by a function of the others (Jacobian 1): the cable fit's
+(:mod:`sbcal.inference.cable_coords`).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from ..model.damper import Damper
 from ..model.fem import PARAMETER_NAMES
 
 
-__all__ = ["Prior", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "composed_prior",
+__all__ = ["Prior", "Shear", "canonical_order", "load_prior", "parameter_sets", "extension_prior", "composed_prior",
            "cable_prior", "default_path"]
 
 _DISTS = ("uniform", "loguniform")
@@ -42,6 +44,30 @@ def canonical_order(names) -> tuple:
 
 
 @dataclass(frozen=True)
+class Shear:
+    """One log-uniform coordinate moved by a function of the others: ``z[name] = ln x[name] + offset(x)``.
+
+    ``offset`` depends on the other parameters only, so the map is triangular with a unit diagonal: the density
+    in the new coordinates is the same, and the inverse is explicit.
+
+    Attributes
+    ----------
+    name : str
+        The moved parameter (log-uniform).
+    offset : callable
+        Picklable; natural values of the other parameters by name, each ``(n,)`` -> ``(n,)``; NaN where they
+        are outside the model's domain (the point is then outside the prior).
+    lower, upper : float
+        The offset is clipped to ``[lower, upper]``; the sampled box of ``name`` is widened by them.
+    """
+
+    name: str
+    offset: object
+    lower: float = -12.0
+    upper: float = 0.0
+
+
+@dataclass(frozen=True)
 class Prior:
     """Independent boxes over named parameters, in natural units.
 
@@ -56,6 +82,9 @@ class Prior:
         True where the box is log-uniform (sampled as ``log x``).
     lower, upper : ndarray, shape (ndim,)
         Box bounds in natural units.
+    shear : Shear, optional
+        Where set, the sampled coordinate of ``shear.name`` is moved (:meth:`sheared`); :attr:`z_lower`,
+        :attr:`z_upper` are then the box of the moved coordinates, and :meth:`log_prob` still the box of ``x``.
 
     Construct with :meth:`from_boxes` (any order of names); code outside this class reaches a
     parameter by its name (:meth:`params`, :meth:`z_of`), never by its position.
@@ -66,6 +95,7 @@ class Prior:
     log_scale: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    shear: Shear | None = None
 
     @classmethod
     def from_boxes(cls, paramset: str, boxes: dict) -> "Prior":
@@ -91,6 +121,25 @@ class Prior:
         for name, bound in (("z_lower", self.lower), ("z_upper", self.upper)):
             z = np.where(self.log_scale, np.log(np.where(self.log_scale, bound, 1.0)), bound)
             object.__setattr__(self, name, z)
+        object.__setattr__(self, "_box", (self.z_lower, self.z_upper))  # of the unmoved coordinates
+        if self.shear is not None:
+            i = self.names.index(self.shear.name)
+            if not self.log_scale[i]:
+                raise ValueError(f"a shear moves a log-uniform coordinate; {self.shear.name} is uniform")
+            object.__setattr__(self, "z_lower", self.z_lower + np.eye(self.ndim)[i] * self.shear.lower)
+            object.__setattr__(self, "z_upper", self.z_upper + np.eye(self.ndim)[i] * self.shear.upper)
+
+    def sheared(self, shear: Shear) -> "Prior":
+        """The same boxes sampled in the coordinates ``shear`` moves."""
+        return Prior(paramset=self.paramset, names=self.names, log_scale=self.log_scale, lower=self.lower,
+                     upper=self.upper, shear=shear)
+
+    def _offset(self, x) -> tuple[int, np.ndarray]:
+        """The shear's offset at natural values ``x`` (n, ndim) (the moved column is not read)."""
+        i = self.names.index(self.shear.name)
+        with np.errstate(invalid="ignore"):
+            off = self.shear.offset({n: x[:, j] for j, n in enumerate(self.names) if j != i})
+        return i, np.clip(np.broadcast_to(off, x.shape[:1]), self.shear.lower, self.shear.upper)
 
     def box(self, name: str) -> tuple[bool, float, float]:
         """``(log_scale, lower, upper)`` of one parameter."""
@@ -100,13 +149,21 @@ class Prior:
     def to_natural(self, z) -> np.ndarray:
         """Sampled coordinates ``(n, ndim)`` -> natural units ``(n, ndim)``."""
         z = np.atleast_2d(z)
-        return np.where(self.log_scale, np.exp(z), z)
+        x = np.where(self.log_scale, np.exp(z), z)
+        if self.shear is not None:
+            i, off = self._offset(x)
+            x[:, i] = np.exp(z[:, i] - off)
+        return x
 
     def to_z(self, x) -> np.ndarray:
         """Natural units ``(n, ndim)`` -> sampled coordinates."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.log_scale, np.log(x), x)
+            z = np.where(self.log_scale, np.log(x), x)
+        if self.shear is not None:
+            i, off = self._offset(x)
+            z[:, i] += off
+        return z
 
     def params(self, z) -> dict:
         """Sampled coordinates ``(n, ndim)`` -> ``{name: natural values (n,)}``."""
@@ -124,18 +181,34 @@ class Prior:
     def log_prob(self, z) -> np.ndarray:
         """Log-density in ``z`` (0 inside the box, ``-inf`` outside): shape ``(n,)``."""
         z = np.atleast_2d(z)
-        inside = np.all((z >= self.z_lower) & (z <= self.z_upper), axis=1)
+        if self.shear is not None:  # the box of x: the moved coordinate back first
+            z = np.where(self.log_scale, np.log(np.where(self.log_scale, self.to_natural(z), 1.0)), z)
+        lo, hi = self._box
+        with np.errstate(invalid="ignore"):
+            inside = np.all((z >= lo) & (z <= hi), axis=1)
         return np.where(inside, 0.0, -np.inf)
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """``n`` draws in ``z``, shape ``(n, ndim)``."""
-        return rng.uniform(self.z_lower, self.z_upper, size=(n, self.ndim))
+        lo, hi = self._box
+        z = rng.uniform(lo, hi, size=(n, self.ndim))
+        return z if self.shear is None else self.to_z(np.where(self.log_scale, np.exp(z), z))
+
+    def middle(self) -> dict:
+        """Natural values by name at the middle of every box (in its own scale: the geometric mean of a
+        log-uniform one)."""
+        lo, hi = self._box
+        mid = (lo + hi) / 2
+        return {n: float(v) for n, v in zip(self.names, np.where(self.log_scale, np.exp(mid), mid))}
 
     def as_dict(self) -> dict:
         """JSON-friendly description (stored with every run)."""
-        return {"paramset": self.paramset, "parameters": {
+        out = {"paramset": self.paramset, "parameters": {
             n: {"dist": "loguniform" if s else "uniform", "lower": float(lo), "upper": float(hi)}
             for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
+        if self.shear is not None:
+            out["sampled_as"] = {"parameter": self.shear.name, "offset": repr(self.shear.offset)}
+        return out
 
 
 def default_path(name="default.toml"):

@@ -1,0 +1,88 @@
+"""The cable fit's sampled coordinates: ``delta_EJ`` sheared by the share of the law's drop the bench sees.
+
+A law's slip part adds ``delta_EJ`` of rigidity while every wire sticks. Wires that slip below the least
+curvature the bench reaches are slipped on every line, so the bench sees only the drop held by the others,
+``delta_EJ * s`` with ``s`` the share of the slip rigidity still held at that curvature. The data pin the
+product, not ``delta_EJ`` and the micro-slip onset apart: in ``ln delta_EJ`` and the onset the posterior is a
+long curved ridge (the in-family zoned posterior's slowest direction, ``docs/cable.md``, "The engine on the
+zoned posterior"). The engine samples ``u = ln delta_EJ + ln s`` instead. ``s`` depends on the law's other
+parameters only, so the map is triangular with a unit diagonal: its Jacobian is 1 and the posterior is the
+same; the stored draws are ``delta_EJ`` (:class:`sbcal.inference.priors.Shear`).
+
+``s`` is the law's own first-harmonic secant rigidity at the reference curvature over ``delta_EJ``
+(:meth:`sbcal.model.laws.base.HysteresisLaw.slip_rigidity`, real part), for any law; the reference is the
+least, over the fit's lines, of the largest curvature along the arm at the fit's start. (The slope of a Masing
+law's virgin curve there, the share of its wires still stuck, mixed no better: in-family zoned posterior, tau max
+182 either way, ``docs/cable.md``.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from ..model.laws import law_for
+from ..model.laws.zones import ZonedLaw
+from .likelihood import JointLikelihood
+from .priors import Shear
+
+__all__ = ["SeenShare", "reference_curvature", "seen_share_target"]
+
+SHARE_FLOOR = -12.0
+"""ln of the least share the coordinate follows: below it (a law whose wires all slip below the bench's
+curvatures, which the bench cannot tell from a stiffer cable) the shear stops growing."""
+
+
+@lru_cache(maxsize=None)
+def _middle_law(law: str):
+    lw = law_for(law)
+    return lw.base if isinstance(lw, ZonedLaw) else lw
+
+
+@dataclass(frozen=True)
+class SeenShare:
+    """``ln s``: the share of a law's slip rigidity still held at the curvature ``chi_ref`` [1/m] (picklable).
+
+    ``SeenShare(law, chi_ref)(params) -> (n,)`` for natural values by name (every parameter of the law's
+    middle but ``delta_EJ``), at least :data:`SHARE_FLOOR`, NaN outside the law's domain. For a zoned law, its
+    middle's.
+    """
+
+    law: str
+    chi_ref: float
+
+    def __call__(self, params: dict) -> np.ndarray:
+        lw = _middle_law(self.law)
+        shape = {k: np.atleast_1d(np.asarray(params[k], float)) for k in lw.parameter_names if k != "delta_EJ"}
+        n = max(v.size for v in shape.values())
+        one = np.ones(n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok = lw.valid(delta_EJ=one, **shape)
+            s = lw.slip_rigidity(self.chi_ref, delta_EJ=one, **shape).real
+            # nothing held (every wire slipped far below chi_ref) is a point of the law: at the floor, not outside
+            return np.where(ok, np.log(np.maximum(s, np.exp(SHARE_FLOOR))), np.nan)
+
+
+def reference_curvature(like: JointLikelihood, params: dict) -> float:
+    """The least, over the lines, of the largest curvature amplitude along the arm [1/m] at one parameter set
+    (natural values by name): the curvature below which every wire is slipped on every line."""
+    one = {n: np.atleast_1d(np.asarray(params[n], float))[:1] for n in like.prior.model_names}
+    st, _ = like.model.state(like.damper, like.freq_hz, **one)
+    top = st.curvature_range[..., 1]
+    top = top[np.isfinite(top) & (top > 0)]
+    if not top.size:
+        raise ValueError("no line of the start reached a finite curvature")
+    return float(top.min())
+
+
+def seen_share_target(like: JointLikelihood, start: dict) -> JointLikelihood:
+    """``like`` in the sheared coordinates (``u = ln delta_EJ + ln s``, the reference curvature at ``start``,
+    natural values by name); ``like`` itself where its law has no ``delta_EJ`` on a log scale."""
+    prior = like.prior
+    law = getattr(like.model, "law", None)
+    if law is None or "delta_EJ" not in prior.names or not prior.box("delta_EJ")[0]:
+        return like
+    shear = Shear(name="delta_EJ", offset=SeenShare(law, reference_curvature(like, start)), lower=SHARE_FLOOR)
+    return JointLikelihood(like.likes, prior.sheared(shear), like.model)
