@@ -11,7 +11,7 @@ coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
@@ -131,8 +131,7 @@ class Prior:
 
     def sheared(self, shear: Shear) -> "Prior":
         """The same boxes sampled in the coordinates ``shear`` moves."""
-        return Prior(paramset=self.paramset, names=self.names, log_scale=self.log_scale, lower=self.lower,
-                     upper=self.upper, shear=shear)
+        return replace(self, shear=shear)
 
     def _offset(self, x) -> tuple[int, np.ndarray]:
         """The shear's offset at natural values ``x`` (n, ndim) (the moved column is not read)."""
@@ -189,7 +188,8 @@ class Prior:
         return np.where(inside, 0.0, -np.inf)
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """``n`` draws in ``z``, shape ``(n, ndim)``."""
+        """``n`` draws in ``z``, shape ``(n, ndim)`` (uniform in the boxes of ``x``; with a :class:`Shear`, rows of
+        NaN where its offset is undefined)."""
         lo, hi = self._box
         z = rng.uniform(lo, hi, size=(n, self.ndim))
         return z if self.shear is None else self.to_z(np.where(self.log_scale, np.exp(z), z))
