@@ -21,9 +21,10 @@ Posteriors (``--posteriors``):
 
 Engines (``--engines``), each to sbcal's convergence rule where it has one:
 
-- ``emcee``: sbcal's engine as a cable fit runs it (:func:`sbcal.inference.cable_fit.cable_config`: 4
+- ``emcee``: sbcal's engine as a cable fit runs it (:func:`sbcal.inference.cable_fit.sample_cable`: 4
   ensembles of differential evolution and an independence move from a t bent along the posterior's widest
-  directions, half of each chain burnt), capped at ``--steps`` steps per ensemble;
+  directions, half of each chain burnt, in the coordinates of :mod:`sbcal.inference.cable_coords`), capped at
+  ``--steps`` steps per ensemble;
 - ``emcee-t``: the same engine with the t alone and a fifth burnt (a test's fit; the cable fits' engine
   before the bend): the baseline of ``emcee``;
 - ``emcee-unsheared``: ``emcee`` on the same posterior in the coordinates of the boxes alone, from the same
