@@ -57,12 +57,10 @@ class SeenShare:
         lw = _middle_law(self.law)
         shape = {k: np.atleast_1d(np.asarray(params[k], float)) for k in lw.parameter_names if k != "delta_EJ"}
         n = max(v.size for v in shape.values())
-        one = np.ones(n)
         with np.errstate(divide="ignore", invalid="ignore"):
-            ok = lw.valid(delta_EJ=one, **shape)
-            s = lw.slip_rigidity(self.chi_ref, delta_EJ=one, **shape).real
+            s = lw.slip_rigidity(self.chi_ref, delta_EJ=np.ones(n), **shape).real  # NaN outside the domain
             # nothing held (every wire slipped far below chi_ref) is a point of the law: at the floor, not outside
-            return np.where(ok, np.log(np.maximum(s, np.exp(SHARE_FLOOR))), np.nan)
+            return np.log(np.maximum(s, np.exp(SHARE_FLOOR)))
 
 
 def reference_curvature(like: JointLikelihood, params: dict) -> float:

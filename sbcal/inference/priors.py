@@ -181,7 +181,9 @@ class Prior:
         """Log-density in ``z`` (0 inside the box, ``-inf`` outside): shape ``(n,)``."""
         z = np.atleast_2d(z)
         if self.shear is not None:  # the box of x: the moved coordinate back first
-            z = np.where(self.log_scale, np.log(np.where(self.log_scale, self.to_natural(z), 1.0)), z)
+            i, off = self._offset(np.where(self.log_scale, np.exp(z), z))
+            z = z.copy()
+            z[:, i] -= off
         lo, hi = self._box
         with np.errstate(invalid="ignore"):
             inside = np.all((z >= lo) & (z <= hi), axis=1)
@@ -192,7 +194,10 @@ class Prior:
         NaN where its offset is undefined)."""
         lo, hi = self._box
         z = rng.uniform(lo, hi, size=(n, self.ndim))
-        return z if self.shear is None else self.to_z(np.where(self.log_scale, np.exp(z), z))
+        if self.shear is not None:
+            i, off = self._offset(np.where(self.log_scale, np.exp(z), z))
+            z[:, i] += off
+        return z
 
     def middle(self) -> dict:
         """Natural values by name at the middle of every box (in its own scale: the geometric mean of a
