@@ -186,6 +186,9 @@ class SampleResult:
     restarts : tuple of (int, int)
         ``(ensemble, step)`` of each stranded ensemble started again (module docstring); the steps
         before the last are warm-up, not in ``n_steps``.
+    sampled_as : dict, optional
+        The target's sheared coordinate where its prior has one (:meth:`sbcal.inference.priors.Prior.as_dict`'s
+        ``sampled_as``): the coordinates the chains, their autocorrelation and R-hat were in.
     """
 
     names: tuple
@@ -207,6 +210,7 @@ class SampleResult:
     config: SamplerConfig
     calls: int = 0
     restarts: tuple = ()
+    sampled_as: dict | None = None
 
     @property
     def n_chains(self) -> int:
@@ -236,7 +240,8 @@ class SampleResult:
         return {"converged": self.converged, "reason": self.reason, "r_hat_max": self.r_hat_max,
                 "ess_bulk_min": self.ess_bulk_min, "ess_tail_min": self.ess_tail_min,
                 "tau_max": float(max(self.tau.values())), "n_steps": self.n_steps, "n_chains": self.n_chains,
-                "restarts": [list(r) for r in self.restarts], "policy": self.config.policy()}
+                "restarts": [list(r) for r in self.restarts], "policy": self.config.policy(),
+                **({"sampled_as": self.sampled_as} if self.sampled_as else {})}
 
     def config_dict(self) -> dict:
         return asdict(self.config)
@@ -553,4 +558,5 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
         wall_s=time.perf_counter() - t0, config=config, calls=int(calls),
         restarts=tuple((e, step) for lost, step in restarts for e in lost),
+        sampled_as=prior.as_dict().get("sampled_as"),
     )
