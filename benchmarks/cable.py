@@ -15,7 +15,8 @@ same run. ``CableModel`` is the compiled kernel (sbcal.model.cable_kernel) with 
 is the kernels' gain, and their largest difference in ``f_uu`` is printed. Targets (the kernel issue):
 >= 5x on the numpy formulation, <= 4 ms for 16 sets x 296 lines. Then, at the first ``--sets``, where the
 time goes in each: the compliance table, the arm constants, the one-compliance start and Newton (mean and
-largest iterations per entry).
+largest iterations per entry); and a fit's sets (near one another, as a posterior's), solved from the slipped
+cable and from one set's loads, as a fit's cable model starts them (``CableForward.near``).
 The first call's compile time (or cache load) is printed first.
 """
 
@@ -98,6 +99,14 @@ def zoned_workload(d, n, seed=1):
     return law_for("iwan5_zoned"), params
 
 
+def near_workload(params, n, seed=2):
+    """``n`` sets within ~2 % (log-normal) of the first set of ``params`` in every parameter, and that set."""
+    rng = np.random.default_rng(seed)
+    one = {k: np.atleast_1d(v)[:1] for k, v in params.items()}
+    near = {k: v * np.exp(0.02 * rng.standard_normal(n)) if np.size(params[k]) > 1 else params[k] for k, v in one.items()}
+    return near, {k: v if np.size(params[k]) > 1 else params[k] for k, v in one.items()}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", type=int, nargs="+", default=[16, 32])
@@ -151,6 +160,20 @@ def main():
     laws, _ = workload(d, n)
     if args.zoned:
         laws["iwan5_zoned"] = zoned_workload(d, n)
+    print(f"\na fit's sets ({n} within ~2 % of one set in every parameter, as a posterior's lie about its mode; "
+          f"{freq.size} lines; best of {args.repeat}): Newton from the slipped cable, and from that set's loads as a "
+          "fit starts it (CableForward.near)")
+    print(f"{'model':40s} {'sets':>5s} {'slipped ms':>11s} {'near ms':>8s} {'x':>6s}  |near / slipped - 1|")
+    for name, (law, params) in laws.items():
+        near, one = near_workload(params, n)
+        fast = CableModel(law)
+        start = fast.loads(d, freq, amp, **one)
+        t_cold = best_time(lambda: fast.dynamic_stiffness(d, freq, amp, **near), args.repeat)
+        t_near = best_time(lambda: fast.dynamic_stiffness(d, freq, amp, start=start, **near), args.repeat)
+        gap = np.nanmax(np.abs(fast.dynamic_stiffness(d, freq, amp, start=start, **near)
+                               / fast.dynamic_stiffness(d, freq, amp, **near) - 1))
+        print(f"{'CableModel ' + name:40s} {n:5d} {t_cold * 1e3:11.1f} {t_near * 1e3:8.1f} {t_cold / t_near:6.2f}  "
+              f"{gap:.1e}")
     print(f"\nwhere the fast model's time goes ({n} sets, {freq.size} lines; best of {args.repeat}; numpy / compiled):")
     for name, (law, params) in laws.items():
         times, its = breakdown(CableModel(law), d, freq, amp, params, args.repeat)

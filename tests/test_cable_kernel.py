@@ -119,3 +119,38 @@ def test_buckets_are_those_of_a_search(crowd):
         assert steps == int(np.max(np.diff(np.concatenate([pos, np.full((s, 1), n)], axis=1), axis=1)))
         if crowd < 1:
             assert steps > 1  # the crowded nodes: more than one comparison even at the most buckets
+
+
+@pytest.mark.parametrize("law", ["iwan", "bouc_wen", "iwan5_zoned"])
+def test_newton_from_a_nearby_state_is_the_same_solve_in_fewer_evaluations(damper1, law):
+    # a fit's posterior: sets within a few % of one another; Newton from one's loads instead of the slipped cable
+    one = {k: np.atleast_1d(v)[:1] for k, v in _sets(law, 1, seed=7).items()}
+    rng = np.random.default_rng(3)
+    near = {k: v * np.exp(0.02 * rng.standard_normal(8)) if k != "log_spread" else v for k, v in one.items()}
+    model = CableModel(law_for(law))
+    start = model.loads(damper1, FREQ, AMPS, **one)
+    assert start.shape == (2, 2 * FREQ.size)
+    cold = model.dynamic_stiffness(damper1, FREQ, AMPS, **near)
+    warm = model.dynamic_stiffness(damper1, FREQ, AMPS, start=start, **near)
+    # both stop once the loads' error estimate is below tol = 1e-8; f_uu then agrees with a 1e-12 solve to
+    # ~1e-6 (docs/cable.md, "Newton"): two such solves differ by at most twice that
+    assert _rel(warm, cold) < 1e-5
+    # the evaluations it saves (the sampler's path runs the same _solve)
+    p, n_sets, _ = model._parameters(damper1, near)
+    table = model._table(p, n_sets)
+    x0 = np.broadcast_to(AMPS, FREQ.shape) / 2 * 1e-3
+    arms = model._arms(p, n_sets, 2 * np.pi * FREQ, x0, model._zone_rule(p, n_sets) if model.zoned else None)
+    assert model._solve(table, arms, n_sets, start)[2].mean() < 0.8 * model._solve(table, arms, n_sets, None)[2].mean()
+
+
+def test_newton_from_a_start_that_does_not_converge_is_the_slipped_cables_solve(damper1):
+    params = _sets("iwan", 4, seed=1)
+    model = CableModel(law_for("iwan"))
+    cold = model.dynamic_stiffness(damper1, FREQ, AMPS, **params)
+    # zero loads cannot move (a step is at most half of |p|): every entry falls back to the slipped cable's start
+    zero = np.zeros((2, 2 * FREQ.size), complex)
+    np.testing.assert_array_equal(model.dynamic_stiffness(damper1, FREQ, AMPS, start=zero, **params), cold)
+    with pytest.raises(ValueError, match=r"start: shape \(2, 10\)"):
+        model.dynamic_stiffness(damper1, FREQ, AMPS, start=zero[:, :10], **params)
+    with pytest.raises(ValueError, match="4 parameter sets given, expected one"):
+        model.loads(damper1, FREQ, AMPS, **params)
