@@ -154,3 +154,7 @@ def test_newton_from_a_start_that_does_not_converge_is_the_slipped_cables_solve(
         model.dynamic_stiffness(damper1, FREQ, AMPS, start=zero[:, :10], **params)
     with pytest.raises(ValueError, match="4 parameter sets given, expected one"):
         model.loads(damper1, FREQ, AMPS, **params)
+    outside = dict(params, delta_EJ=np.array([40.0, -1.0, 40.0, 40.0]))  # one set outside the law's domain
+    with pytest.raises(ValueError, match="4 parameter sets given, expected one"):
+        model.loads(damper1, FREQ, AMPS, **outside)
+    assert np.isnan(model.loads(damper1, FREQ, AMPS, **{k: v[1:2] for k, v in outside.items()})).all()

@@ -296,7 +296,7 @@ def sample_cable(like: JointLikelihood, *, seed: np.random.SeedSequence, config:
 
 def _near(like: JointLikelihood, start: dict) -> JointLikelihood:
     """``like`` whose cable model starts every line's Newton from the cable's state at ``start`` (natural values
-    by name; :meth:`CableForward.near`): the posterior's sets lie near it (0.45-0.7x of a model call)."""
+    by name; :meth:`CableForward.near`): the posterior's sets lie near it (0.45-0.66x of a model call, ``docs/cable.md``, "Newton")."""
     fw = like.model
     near = fw.near(like.damper, like.freq_hz, like.model_params(start)) if isinstance(fw, CableForward) else fw
     return like if near is fw else JointLikelihood(like.likes, like.prior, near)

@@ -530,8 +530,8 @@ class CableModel(CableBase):
         nf, q = f.size, int(self.sections) + (2 * int(self.zone_sections) if self.zoned else 0)
         if amp.ndim == 2 and amp.shape[0] == n_sets > 1:
             amp = amp[keep]
-        if full == "loads":  # one set, outside the domain
-            return np.full((2, 2 * nf), np.nan + 0j)
+        if full == "loads":  # a set outside the domain: NaN for every set (loads() takes one)
+            return np.full((2, 2 * nf * n_sets), np.nan + 0j)
         if not full:
             out = np.full((n_sets, nf), np.nan + 0j)
             if keep.size:
