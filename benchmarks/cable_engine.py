@@ -67,6 +67,7 @@ from sbcal.inference.likelihood import JointLikelihood  # noqa: E402
 from sbcal.inference.priors import Prior  # noqa: E402
 from sbcal.inference.sampler import SamplerConfig  # noqa: E402
 from sbcal.model.damper import load_damper, resolve_damper  # noqa: E402
+from sbcal.model.laws.iwan import _power_integral  # noqa: E402
 
 
 class _Counted:
@@ -123,14 +124,6 @@ def posterior(name: str, seed: int):
 G_FLOOR = 0.25  # the least share g the trial follows: the sampled box of m is [0, 5 / G_FLOOR]
 
 
-def _spread_integral(a, b, c):
-    """``int_a^b phi^c dphi`` (the ``iwan5`` spread density's mass between ``a`` and ``b``, up to ``R``)."""
-    p = c + 1.0
-    small = np.abs(p) < 1e-9
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        return np.where(small, np.log(b / a), (b ** p - a ** p) / np.where(small, 1.0, p))
-
-
 @dataclass(frozen=True)
 class PointMassSeen(Prior):
     """The trial's prior: the sheared prior of ``emcee`` with ``macro_ratio`` sampled as ``m = macro_ratio / g``,
@@ -149,7 +142,8 @@ class PointMassSeen(Prior):
 
     def _g(self, x):
         lo, hi, c = (x[:, self.names.index(n)] for n in ("chi_micro", "chi_macro", "density_exponent"))
-        g = _spread_integral(np.maximum(lo, self.chi_ref), hi, c) / _spread_integral(lo, hi, c)
+        # the iwan5 spread density's mass above each lower end, int phi^c dphi (the law's own integral)
+        g = _power_integral(np.maximum(lo, self.chi_ref), hi, c + 1.0) / _power_integral(lo, hi, c + 1.0)
         return np.clip(np.where(self.chi_ref >= hi, G_FLOOR, g), G_FLOOR, 1.0)
 
     def to_natural(self, z):
