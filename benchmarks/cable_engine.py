@@ -1,7 +1,7 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
 Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix]
-       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-point-mass nautilus]
+       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
 Posteriors (``--posteriors``):
@@ -30,11 +30,9 @@ Engines (``--engines``), each to sbcal's convergence rule where it has one:
 - ``emcee-unsheared``: ``emcee`` on the same posterior in the coordinates of the boxes alone, from the same
   start and streams: the cable fit before :mod:`sbcal.inference.cable_coords` (``ln delta_EJ`` sampled as
   it is, not with the log of the share of the law's drop the bench sees added), the baseline of ``emcee``;
-- ``emcee-point-mass``: a trial, not sbcal's engine: ``emcee`` with ``macro_ratio`` (the ``iwan5`` family's point
-  mass at ``chi_macro`` over the spread density's mass) sampled as the point mass over the spread mass *above the
-  reference curvature* (:class:`PointMassSeen`: ``macro_ratio = m g``, ``g`` the share of the spread mass above
-  it, floored at 1/4; the Jacobian ``ln g`` added to the log-density), the second straightening of the zoned
-  posterior's slowest pair (``chi_micro``, ``macro_ratio``: ``docs/cable.md``); ``iwan5`` laws only;
+- ``emcee-share-only``: ``emcee`` with ``delta_EJ``'s shear alone, the law's seen ratios (``iwan5``'s
+  ``macro_ratio``, :class:`sbcal.inference.cable_coords.SeenRatio`) sampled as they are: the cable fit before the
+  second shear, its baseline;
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -50,7 +48,7 @@ import json
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -61,13 +59,11 @@ from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
 from sbcal.inference.cable_fit import (cable_config, cable_likelihood, fit_cable, sample_cable,  # noqa: E402
                                       zoned_start)
-from sbcal.inference.cable_coords import reference_curvature, seen_share_target  # noqa: E402
+from sbcal.inference.cable_coords import seen_share_target  # noqa: E402
 from sbcal.inference.cable_fit import _near  # noqa: E402
 from sbcal.inference.likelihood import JointLikelihood  # noqa: E402
-from sbcal.inference.priors import Prior  # noqa: E402
 from sbcal.inference.sampler import SamplerConfig  # noqa: E402
 from sbcal.model.damper import load_damper, resolve_damper  # noqa: E402
-from sbcal.model.laws.iwan import _power_integral  # noqa: E402
 
 
 class _Counted:
@@ -121,88 +117,21 @@ def posterior(name: str, seed: int):
     raise SystemExit(f"unknown posterior {name!r}")
 
 
-G_FLOOR = 0.25  # the least share g the trial follows: the sampled box of m is [0, 5 / G_FLOOR]
-
-
-@dataclass(frozen=True)
-class PointMassSeen(Prior):
-    """The trial's prior: the sheared prior of ``emcee`` with ``macro_ratio`` sampled as ``m = macro_ratio / g``,
-    ``g = int_max(chi_micro, chi_ref)^chi_macro phi^c / int_chi_micro^chi_macro phi^c`` (clipped to
-    ``[G_FLOOR, 1]``): the point mass over the spread mass the bench sees. Triangular (``g`` reads ``chi_micro``,
-    ``chi_macro``, ``density_exponent`` only), Jacobian ``g``: :meth:`log_prob` is ``ln g`` inside the box."""
-
-    chi_ref: float = 1e-4
-
-    def __post_init__(self):
-        super().__post_init__()
-        i = self.names.index("macro_ratio")
-        upper = self.z_upper.copy()
-        upper[i] = self.upper[i] / G_FLOOR
-        object.__setattr__(self, "z_upper", upper)
-
-    def _g(self, x):
-        lo, hi, c = (x[:, self.names.index(n)] for n in ("chi_micro", "chi_macro", "density_exponent"))
-        # the iwan5 spread density's mass above each lower end, int phi^c dphi (the law's own integral)
-        g = _power_integral(np.maximum(lo, self.chi_ref), hi, c + 1.0) / _power_integral(lo, hi, c + 1.0)
-        return np.clip(np.where(self.chi_ref >= hi, G_FLOOR, g), G_FLOOR, 1.0)
-
-    def to_natural(self, z):
-        z = np.atleast_2d(z)
-        x = np.where(self.log_scale, np.exp(z), z)
-        m = self.names.index("macro_ratio")
-        x[:, m] = z[:, m] * self._g(x)  # first: delta_EJ's shear reads the natural macro_ratio
-        i, off = self._offset(x)
-        x[:, i] = np.exp(z[:, i] - off)
-        return x
-
-    def to_z(self, x):
-        x = np.atleast_2d(np.asarray(x, float))
-        z = super().to_z(x)
-        m = self.names.index("macro_ratio")
-        z[:, m] = x[:, m] / self._g(x)
-        return z
-
-    def log_prob(self, z):
-        x = self.to_natural(z)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xz = np.where(self.log_scale, np.log(x), x)
-        lo, hi = self._box
-        return np.where(np.all((xz >= lo) & (xz <= hi), axis=1), np.log(self._g(x)), -np.inf)
-
-    def sample(self, rng, n):
-        lo, hi = self._box
-        u = rng.uniform(lo, hi, size=(n, self.ndim))
-        return self.to_z(np.where(self.log_scale, np.exp(u), u))
-
-
-class WithJacobian(JointLikelihood):
-    """``JointLikelihood`` takes its prior as 0 inside the box; the trial's carries ``ln g`` there."""
-
-    def __call__(self, z):
-        z = np.atleast_2d(z)
-        jac = self.prior.log_prob(z)
-        out = super().__call__(z)
-        return np.where(np.isfinite(out), out + np.where(np.isfinite(jac), jac, 0.0), out)
-
-
-def point_mass_target(like, start):
-    """The trial's target: ``sample_cable``'s (the Newton from the start's state, ``delta_EJ`` sheared) with
-    ``macro_ratio`` sampled as the point mass over the spread mass above the reference curvature."""
+def share_only_target(like, start):
+    """``sample_cable``'s target with ``delta_EJ``'s shear alone (the law's seen ratios sampled as they are)."""
     target = seen_share_target(_near(like, start), start)
     pr = target.prior
-    prior = PointMassSeen(paramset=pr.paramset, names=pr.names, log_scale=pr.log_scale, lower=pr.lower,
-                          upper=pr.upper, shear=pr.shear, chi_ref=reference_curvature(like, start))
-    return WithJacobian(target.likes, prior, target.model)
+    return JointLikelihood(target.likes, replace(pr, shears=pr.shears[-1:]), target.model)
 
 
-def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True, point_mass=False) -> dict:
+def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True, share_only=False) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:
         cfg = replace(cfg, bend=0, burn_fraction=SamplerConfig.burn_fraction)
     t0 = time.perf_counter()
-    if not shear or point_mass:  # sample_cable's start and streams, the engine on another target
+    if not shear or share_only:  # sample_cable's start and streams, the engine on another target
         from sbcal.inference.cable_start import cable_start, fit_streams
         from sbcal.inference.sampler import sample
 
@@ -211,10 +140,10 @@ def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, sh
             start = {n: start.get(n, m) for n, m in like.prior.middle().items()}
         elif start is None:
             start = cable_start(like, np.random.default_rng(s_start))
-        if point_mass:
+        if share_only:
             natural = start if isinstance(start, dict) else dict(zip(like.prior.names, like.prior.to_natural(
                 np.asarray(start, float)[None])[0]))
-            res = sample(point_mass_target(like, natural), seed=s_sample, config=cfg, start=natural)
+            res = sample(share_only_target(like, natural), seed=s_sample, config=cfg, start=natural)
         else:
             res = sample(like, seed=s_sample, config=cfg, start=start)
     else:
@@ -259,7 +188,7 @@ def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix"])
-    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-unsheared", "emcee-point-mass",
+    ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-unsheared", "emcee-share-only",
                                                                     "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
@@ -278,7 +207,7 @@ def main(argv=None) -> int:
             else:
                 r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
                               screen={"emcee-screen": True, "emcee-plain": False}.get(engine), start=start,
-                              shear=engine != "emcee-unsheared", point_mass=engine == "emcee-point-mass")
+                              shear=engine != "emcee-unsheared", share_only=engine == "emcee-share-only")
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
                       f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step"

@@ -9,7 +9,7 @@ import pytest
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.labels import state_tests
 from sbcal.data.readers import default_bench_path, load_bench
-from sbcal.inference.cable_coords import SHARE_FLOOR, SeenShare, reference_curvature, seen_share_target
+from sbcal.inference.cable_coords import SHARE_FLOOR, SeenRatio, SeenShare, reference_curvature, seen_share_target
 from sbcal.inference.cable_fit import _near, cable_likelihood
 from sbcal.inference.priors import Prior, Shear
 from sbcal.model.laws import law_for
@@ -47,11 +47,65 @@ def test_a_shear_is_the_same_box_in_other_coordinates():
     good = np.isfinite(d).all(axis=1)
     assert good.mean() > 0.8 and np.all(np.isfinite(sheared.log_prob(d[good])))
     assert sheared.middle() == pytest.approx(plain.middle()) and plain.middle()["a"] == pytest.approx(np.sqrt(0.1))
-    assert sheared.as_dict()["sampled_as"]["parameter"] == "a" and "sampled_as" not in plain.as_dict()
+    assert [d["parameter"] for d in sheared.as_dict()["sampled_as"]] == ["a"] and "sampled_as" not in plain.as_dict()
     back = pickle.loads(pickle.dumps(sheared))
     assert np.array_equal(back.to_z(x[ok]), z[ok])
     with pytest.raises(ValueError, match="log-uniform"):
         plain.sheared(Shear(name="b", offset=_tilt))
+    with pytest.raises(ValueError, match="uniform coordinate"):
+        plain.sheared(Shear(name="a", offset=_tilt, kind="scale"))
+    with pytest.raises(ValueError, match="moved once"):
+        plain.sheared(Shear(name="a", offset=_tilt), Shear(name="a", offset=_tilt))
+
+
+def _share_of_b(params):
+    """A stand-in ratio offset for b: reads c only (clipped to [0, ln 4] by the shear)."""
+    return np.log(params["c"]) + 0.8
+
+
+def test_scale_and_log_shears_chained_carry_their_jacobian():
+    plain = _prior()
+    # b scaled by e^o(c), then a moved by an offset that reads the natural b: the order the cable fit uses
+    sheared = plain.sheared(Shear(name="b", offset=_share_of_b, lower=0.0, upper=np.log(4.0), kind="scale"),
+                            Shear(name="a", offset=_tilt, lower=-4.0, upper=0.5))
+    rng = np.random.default_rng(11)
+    x = np.column_stack([np.exp(rng.uniform(np.log(1e-2), np.log(10.0), 2000)), rng.uniform(0.0, 0.9, 2000),
+                         np.exp(rng.uniform(np.log(0.1), np.log(2.0), 2000))])
+    z = sheared.to_z(x)
+    assert np.allclose(sheared.to_natural(z), x, rtol=1e-13, atol=1e-15)
+    assert np.allclose(z[:, 1], x[:, 1] * np.exp(np.clip(np.log(x[:, 2]) + 0.8, 0.0, np.log(4.0))), rtol=1e-14)
+    # log_prob is ln |det du/dz| inside the box, u the unmoved coordinates (ln a, b, ln c) in which the box is
+    # flat: central differences of to_natural (step 1e-6, error ~1e-10 on O(1) entries)
+    def unmoved(zi):
+        xi = sheared.to_natural(zi)[0]
+        return np.where(plain.log_scale, np.log(xi), xi)
+
+    h = 1e-6
+    for zi in z[:20]:
+        jac = np.column_stack([(unmoved(zi + h * e) - unmoved(zi - h * e)) / (2 * h) for e in np.eye(3)])
+        assert sheared.log_prob(zi)[0] == pytest.approx(np.log(abs(np.linalg.det(jac))), abs=1e-7)
+    assert np.ptp(sheared.log_prob(z)) > 0.5  # the Jacobian varies: the check above is not of a constant
+    # the scale shear's box is b's [0, 1] times [1, 4]; a draw is inside the prior
+    assert sheared.z_lower[1] == 0.0 and sheared.z_upper[1] == pytest.approx(4.0)
+    d = sheared.sample(rng, 400)
+    assert np.all(np.isfinite(sheared.log_prob(d[np.isfinite(d).all(axis=1)])))
+    assert [m["kind"] for m in sheared.as_dict()["sampled_as"]] == ["scale", "log"]
+    assert np.array_equal(pickle.loads(pickle.dumps(sheared)).to_z(x), z)
+
+
+def test_the_seen_ratio_is_the_spread_mass_above_the_reference():
+    law = law_for("iwan5")
+    p = {"chi_micro": np.array([1e-6, 1e-3, 1e-6, 1e-3]), "chi_macro": np.array([1e-2, 1e-2, 1e-5, 1e-4]),
+         "density_exponent": np.array([-0.5, 0.0, 0.0, 0.0])}
+    ln_g = law.seen_ratios(1e-4, delta_EJ=1.0, macro_ratio=0.0, **p)["macro_ratio"]
+    # int phi^-1/2 from 1e-4 and from 1e-6 to 1e-2: 2 (0.1 - 0.01) over 2 (0.1 - 0.001)
+    assert ln_g[0] == pytest.approx(np.log(0.09 / 0.099), rel=1e-12)
+    # all above the reference: seen whole; all below: none; outside the domain: NaN
+    assert ln_g[1] == 0.0 and ln_g[2] == -np.inf and np.isnan(ln_g[3])
+    # the offset of the sampled ratio is -ln g, the zoned law's its middle's; a law without a ratio has none
+    got = SeenRatio("iwan5_zoned", 1e-4, "macro_ratio")({k: v[:2] for k, v in p.items()})
+    assert got == pytest.approx(-ln_g[:2], rel=1e-12)
+    assert law_for("bouc_wen").seen_ratios(1e-4, **{n: 1.0 for n in law_for("bouc_wen").parameter_names}) == {}
 
 
 def test_the_seen_share_is_the_laws_held_rigidity_at_the_reference():
@@ -89,7 +143,9 @@ def test_the_sheared_cable_posterior_is_the_same_posterior(damper1, law):
     target = seen_share_target(like, start)
     chi = reference_curvature(like, start)
     assert 1e-6 < chi < 1.0  # [1/m]: the least of the lines' largest curvatures
-    assert target.prior.shear.offset == SeenShare(law, chi) and target.model is like.model
+    assert target.prior.shears[-1].offset == SeenShare(law, chi) and target.model is like.model
+    ratios = [s.name for s in target.prior.shears[:-1]]
+    assert ratios == (["macro_ratio"] if law.startswith("iwan5") else [])
     rng = np.random.default_rng(5)
     z = like.prior.sample(rng, 48)
     lp = like(z)
@@ -100,7 +156,11 @@ def test_the_sheared_cable_posterior_is_the_same_posterior(damper1, law):
     # the parameters agree to a few ulp; the cable's Newton solve stops at its tolerance, so a ulp moves the
     # log-density by up to ~1e-8 nats here (measured 2e-8 on values of 1e3): far below anything a nat decides
     assert np.allclose(target.prior.to_natural(zs)[f], like.prior.to_natural(z)[f], rtol=1e-14, atol=0)
-    assert np.allclose(lps[f], lp[f], rtol=1e-10, atol=1e-6)
+    # the density in the new coordinates is the same times the map's Jacobian (the seen ratio's g: at most ln 4)
+    jac = target.prior.log_prob(zs)[f]
+    assert np.all(jac <= 0) and np.all(jac >= -np.log(4.0) - 1e-12)
+    assert (jac < -1e-3).any() == law.startswith("iwan5")
+    assert np.allclose(lps[f] - jac, lp[f], rtol=1e-10, atol=1e-6)
 
 
 @pytest.mark.parametrize("law", ["iwan5", "bouc_wen"])

@@ -63,8 +63,9 @@ class DiagnoseConfig:
     draws : int
         Posterior draws kept per ensemble.
     max_steps, cable_max_steps : int
-        Step caps of the engine for a per-test fit and for a cable-law fit (the policy and everything
-        else are the engine's: :data:`sbcal.inference.sampler.POLICY`).
+        Step caps of the engine for a per-test fit and for a cable-law fit (``cable_max_steps`` None:
+        :func:`sbcal.inference.cable_fit.cable_config`'s, by the dimension; the policy and everything else are
+        the engine's: :data:`sbcal.inference.sampler.POLICY`).
     workers : int
         Processes: fits run in parallel, one per process.
     harmonics : bool
@@ -84,7 +85,7 @@ class DiagnoseConfig:
     secondary: bool = True
     draws: int = 250
     max_steps: int = 20000
-    cable_max_steps: int = 8000
+    cable_max_steps: int | None = None
     harmonics: bool = True
 
     def sampler(self, ndim: int, joint: bool = False, workers: int = 1) -> SamplerConfig:

@@ -105,7 +105,7 @@ class _Target:
         if ok.any():
             with np.errstate(all="ignore"):
                 lp = self.log_likelihood(self.prior.params(z[ok]))
-            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
+            out[ok] += np.where(np.isfinite(lp), lp, -np.inf)
         return out
 
 

@@ -60,15 +60,20 @@ def compared_laws(laws, tests) -> tuple:
     return tuple(law for law in laws if law_for(law).min_tests <= fewest)
 
 
-def cable_config(ndim: int, *, workers: int = 2, max_steps: int = 8000, max_draws: int = 250) -> SamplerConfig:
+def cable_config(ndim: int, *, workers: int = 2, max_steps: int | None = None, max_draws: int = 250) -> SamplerConfig:
     """The engine's settings for a cable fit (the policy is the engine's; a cap that keeps a stuck
-    fit within minutes: the cable model costs ~1 ms per parameter set). The independence proposal bends
+    fit within minutes: the cable model costs ~1 ms per parameter set). The cap, unless given, is
+    ``max(8000, 800 ndim)`` steps: differential evolution's autocorrelation time grows with the dimension (tau
+    6-10 ``ndim`` steps measured on the cable posteriors) and the rule keeps 50 of them in the second half of the
+    run, so a 17-parameter zoned law needs ~10 000 steps (9 600 in-family, ``docs/cable.md``) where a uniform
+    law's 6-10 parameters converge in 1 000-6 000. The independence proposal bends
     along up to six of the posterior's widest directions (a one-test state's law is a thin curved ridge),
     and the first half of every chain is burn-in: the early rounds' proposals, fitted before the chain
     reached the ridge's tails, read them short when a fifth is discarded (``docs/calibration.md``). Where a
     quadratic of the log-density predicts the kept steps, proposals are screened by it before the model is
     called (:mod:`sbcal.inference.surrogate`; a multi-test state's law: half the calls)."""
-    return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps, max_draws=max_draws, first_steps=300,
+    return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps or max(8000, 800 * ndim), max_draws=max_draws,
+                         first_steps=300,
                          de_population=4 * ndim + 8, de_generations=60, workers=workers, bend=6,
                          burn_fraction=0.5, screen=True)
 
@@ -303,7 +308,7 @@ def _near(like: JointLikelihood, start: dict) -> JointLikelihood:
 
 
 def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), workers: int = 2,
-              max_steps: int = 8000, max_draws: int = 250, start=None, prior_path=None,
+              max_steps: int | None = None, max_draws: int = 250, start=None, prior_path=None,
               progress: str | None = None) -> CableFit:
     """Sample one cable state's law (see the module docstring).
 
@@ -321,7 +326,7 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
     effects : sequence of str
         Secondary effects on top (:data:`SECONDARY`).
     workers, max_steps, max_draws : int
-        As :func:`cable_config` (the draws do not depend on ``workers``).
+        As :func:`cable_config` (the draws do not depend on ``workers``; ``max_steps`` None: its cap).
     start : dict or ndarray, optional
         Natural values by name to polish the mode from, or a start in sampled coordinates
         (``(ndim,)``, e.g. the family screen's); default :func:`cable_start`.

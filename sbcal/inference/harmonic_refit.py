@@ -154,7 +154,7 @@ def harmonic_fixed_point(like: JointLikelihood, start: dict, lines, max_rounds: 
     return z, c, changes
 
 
-def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 8, max_steps: int = 8000,
+def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 8, max_steps: int | None = None,
                     progress: str | None = None) -> CableFit | None:
     """The cable fit refitted with the multi-harmonic solve where it is needed (module docstring).
 

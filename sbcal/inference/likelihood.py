@@ -201,7 +201,7 @@ class TestLikelihood:
                 with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
                     lp[valid] = self.log_likelihood({k: v[valid] for k, v in params.items()})
             lp[~np.isfinite(lp)] = -np.inf  # a NaN would stop emcee
-            out[ok] = lp
+            out[ok] += lp  # the prior's log-density (0 in a box) plus the likelihood
         return out
 
     # -- by run, for LOO, checks and predictions -----------------------------------------------
@@ -332,5 +332,5 @@ class JointLikelihood:
         if ok.any():
             with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
                 lp = self.log_likelihood(self.prior.params(z[ok]))
-            out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
+            out[ok] += np.where(np.isfinite(lp), lp, -np.inf)
         return out

@@ -4,8 +4,8 @@ A :class:`Prior` is the product of independent uniform or log-uniform boxes over
 of one named set (``theta1`` ...) plus the likelihood's model-error scales, reached by name. The sampler works in
 coordinates ``z`` where every box is uniform: ``z = x`` for a uniform parameter and
 ``z = log(x)`` for a log-uniform one, so the log-prior is 0 inside the box and ``-inf`` outside. A
-:class:`Shear` may move one log coordinate by a function of the others (Jacobian 1): the cable fit's
-(:mod:`sbcal.inference.cable_coords`).
+:class:`Shear` may move a coordinate by a function of the others (a triangular map: the log-Jacobian, where not 0,
+is in :meth:`Prior.log_prob`): the cable fit's (:mod:`sbcal.inference.cable_coords`).
 """
 
 from __future__ import annotations
@@ -45,26 +45,32 @@ def canonical_order(names) -> tuple:
 
 @dataclass(frozen=True)
 class Shear:
-    """One log-uniform coordinate moved by a function of the others: ``z[name] = ln x[name] + offset(x)``.
+    """One coordinate moved by a function ``o`` of the others.
 
-    ``offset`` depends on the other parameters only, so the map is triangular with a unit diagonal: the density
-    in the new coordinates is the same, and the inverse is explicit.
+    Two kinds: ``"log"`` moves a log-uniform coordinate, ``z = ln x + o`` (Jacobian 1, the density in the new
+    coordinates is the same); ``"scale"`` scales a uniform one on ``[lower >= 0, upper]``, ``z = x e^o``
+    (Jacobian ``e^-o``: the density in ``z`` carries ``-o``, :meth:`Prior.log_prob`). ``o`` reads the other
+    parameters only, so the map is triangular and its inverse explicit.
 
     Attributes
     ----------
     name : str
-        The moved parameter (log-uniform).
+        The moved parameter.
     offset : callable
-        Picklable; natural values of the other parameters by name, each ``(n,)`` -> ``(n,)``; NaN where they
-        are outside the model's domain (the point is then outside the prior).
+        Picklable; natural values of the other parameters by name, each ``(n,)`` -> ``o`` ``(n,)``; NaN where
+        they are outside the model's domain (the point is then outside the prior). It is given only the
+        parameters no later shear of the same prior moves (:attr:`Prior.shears`).
     lower, upper : float
-        The offset is clipped to ``[lower, upper]``; the sampled box of ``name`` is widened by them.
+        ``o`` is clipped to ``[lower, upper]``; the sampled box of ``name`` is widened by them.
+    kind : str
+        ``"log"`` or ``"scale"``.
     """
 
     name: str
     offset: object
     lower: float = -12.0
     upper: float = 0.0
+    kind: str = "log"
 
 
 @dataclass(frozen=True)
@@ -82,9 +88,11 @@ class Prior:
         True where the box is log-uniform (sampled as ``log x``).
     lower, upper : ndarray, shape (ndim,)
         Box bounds in natural units.
-    shear : Shear, optional
-        Where set, the sampled coordinate of ``shear.name`` is moved (:meth:`sheared`); :attr:`z_lower`,
-        :attr:`z_upper` are then the box of the moved coordinates, and :meth:`log_prob` still the box of ``x``.
+    shears : tuple of Shear
+        The coordinates moved (:meth:`sheared`), in order: each shear's offset reads the unmoved parameters and
+        those of the shears before it, so the natural values are recovered in this order. :attr:`z_lower`,
+        :attr:`z_upper` are then the box of the moved coordinates, and :meth:`log_prob` the box of ``x`` plus the
+        ``"scale"`` shears' log-Jacobian.
 
     Construct with :meth:`from_boxes` (any order of names); code outside this class reaches a
     parameter by its name (:meth:`params`, :meth:`z_of`), never by its position.
@@ -95,7 +103,7 @@ class Prior:
     log_scale: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
-    shear: Shear | None = None
+    shears: tuple = ()
 
     @classmethod
     def from_boxes(cls, paramset: str, boxes: dict) -> "Prior":
@@ -122,23 +130,67 @@ class Prior:
             z = np.where(self.log_scale, np.log(np.where(self.log_scale, bound, 1.0)), bound)
             object.__setattr__(self, name, z)
         object.__setattr__(self, "_box", (self.z_lower, self.z_upper))  # of the unmoved coordinates
-        if self.shear is not None:
-            i = self.names.index(self.shear.name)
-            if not self.log_scale[i]:
-                raise ValueError(f"a shear moves a log-uniform coordinate; {self.shear.name} is uniform")
-            object.__setattr__(self, "z_lower", self.z_lower + np.eye(self.ndim)[i] * self.shear.lower)
-            object.__setattr__(self, "z_upper", self.z_upper + np.eye(self.ndim)[i] * self.shear.upper)
+        moved = [s.name for s in self.shears]
+        if len(set(moved)) < len(moved):
+            raise ValueError(f"a coordinate is moved once: {moved}")
+        lo, hi = self.z_lower.copy(), self.z_upper.copy()
+        for s in self.shears:
+            i = self.names.index(s.name)
+            if s.kind == "log":
+                if not self.log_scale[i]:
+                    raise ValueError(f"a log shear moves a log-uniform coordinate; {s.name} is uniform")
+                lo[i] += s.lower
+                hi[i] += s.upper
+            elif s.kind == "scale":
+                if self.log_scale[i] or self.lower[i] < 0:
+                    raise ValueError(f"a scale shear moves a uniform coordinate on [>= 0, ...]; {s.name} is not")
+                lo[i] *= math.exp(s.lower)
+                hi[i] *= math.exp(s.upper)
+            else:
+                raise ValueError(f"shear kind {s.kind!r}: expected 'log' or 'scale'")
+        object.__setattr__(self, "z_lower", lo)
+        object.__setattr__(self, "z_upper", hi)
 
-    def sheared(self, shear: Shear) -> "Prior":
-        """The same boxes sampled in the coordinates ``shear`` moves."""
-        return replace(self, shear=shear)
+    def sheared(self, *shears: Shear) -> "Prior":
+        """The same boxes sampled in the coordinates ``shears`` move (after this prior's own)."""
+        return replace(self, shears=self.shears + tuple(shears))
 
-    def _offset(self, x) -> tuple[int, np.ndarray]:
-        """The shear's offset at natural values ``x`` (n, ndim) (the moved column is not read)."""
-        i = self.names.index(self.shear.name)
+    def _offset(self, k: int, x) -> tuple[int, np.ndarray]:
+        """Shear ``k``'s ``(column, o)`` at natural values ``x`` (n, ndim), ``o`` clipped; its offset is given the
+        parameters that no shear from ``k`` on moves."""
+        s = self.shears[k]
+        later = {t.name for t in self.shears[k:]}
         with np.errstate(invalid="ignore"):
-            off = self.shear.offset({n: x[:, j] for j, n in enumerate(self.names) if j != i})
-        return i, np.clip(np.broadcast_to(off, x.shape[:1]), self.shear.lower, self.shear.upper)
+            o = s.offset({n: x[:, j] for j, n in enumerate(self.names) if n not in later})
+        return self.names.index(s.name), np.clip(np.broadcast_to(o, x.shape[:1]), s.lower, s.upper)
+
+    def _move(self, z, x) -> np.ndarray:
+        """Unmoved coordinates ``z`` (n, ndim) of natural values ``x`` -> the sampled ones (in place)."""
+        for k, s in enumerate(self.shears):
+            i, o = self._offset(k, x)
+            if s.kind == "log":
+                z[:, i] += o
+            else:
+                z[:, i] *= np.exp(o)
+        return z
+
+    def _unmoved(self, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sampled coordinates ``z`` (n, ndim) -> ``(u, x, log_jacobian)``: the unmoved coordinates, natural
+        values and the ``"scale"`` shears' ``-o`` summed (n,); the shears undone in order, each offset reading the
+        columns recovered before it."""
+        u = np.array(z, dtype=float, ndmin=2)
+        x = np.where(self.log_scale, np.exp(u), u)
+        jac = np.zeros(u.shape[0])
+        for k, s in enumerate(self.shears):
+            i, o = self._offset(k, x)
+            if s.kind == "log":
+                u[:, i] -= o
+                x[:, i] = np.exp(u[:, i])
+            else:
+                u[:, i] *= np.exp(-o)
+                x[:, i] = u[:, i]
+                jac -= o
+        return u, x, jac
 
     def box(self, name: str) -> tuple[bool, float, float]:
         """``(log_scale, lower, upper)`` of one parameter."""
@@ -148,21 +200,16 @@ class Prior:
     def to_natural(self, z) -> np.ndarray:
         """Sampled coordinates ``(n, ndim)`` -> natural units ``(n, ndim)``."""
         z = np.atleast_2d(z)
-        x = np.where(self.log_scale, np.exp(z), z)
-        if self.shear is not None:
-            i, off = self._offset(x)
-            x[:, i] = np.exp(z[:, i] - off)
-        return x
+        if not self.shears:
+            return np.where(self.log_scale, np.exp(z), z)
+        return self._unmoved(z)[1]
 
     def to_z(self, x) -> np.ndarray:
         """Natural units ``(n, ndim)`` -> sampled coordinates."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.where(self.log_scale, np.log(x), x)
-        if self.shear is not None:
-            i, off = self._offset(x)
-            z[:, i] += off
-        return z
+        return self._move(z, x)
 
     def params(self, z) -> dict:
         """Sampled coordinates ``(n, ndim)`` -> ``{name: natural values (n,)}``."""
@@ -178,25 +225,24 @@ class Prior:
         return self.to_z(np.stack(cols, axis=1))
 
     def log_prob(self, z) -> np.ndarray:
-        """Log-density in ``z`` (0 inside the box, ``-inf`` outside): shape ``(n,)``."""
+        """Log-density in ``z``: shape ``(n,)``, ``-inf`` outside the box of ``x``; inside 0, plus ``-o`` of each
+        ``"scale"`` shear (its log-Jacobian)."""
         z = np.atleast_2d(z)
-        if self.shear is not None:  # the box of x: the moved coordinate back first
-            i, off = self._offset(np.where(self.log_scale, np.exp(z), z))
-            z = z.copy()
-            z[:, i] -= off
+        jac = 0.0
+        if self.shears:  # the box of x: the moved coordinates back first
+            z, _, jac = self._unmoved(z)
         lo, hi = self._box
         with np.errstate(invalid="ignore"):
             inside = np.all((z >= lo) & (z <= hi), axis=1)
-        return np.where(inside, 0.0, -np.inf)
+        return np.where(inside, jac, -np.inf)
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """``n`` draws in ``z``, shape ``(n, ndim)`` (uniform in the boxes of ``x``; with a :class:`Shear`, rows of
-        NaN where its offset is undefined)."""
+        """``n`` draws in ``z``, shape ``(n, ndim)`` (uniform in the boxes of ``x``; with shears, rows of NaN where
+        an offset is undefined)."""
         lo, hi = self._box
         z = rng.uniform(lo, hi, size=(n, self.ndim))
-        if self.shear is not None:
-            i, off = self._offset(np.where(self.log_scale, np.exp(z), z))
-            z[:, i] += off
+        if self.shears:
+            z = self._move(z, np.where(self.log_scale, np.exp(z), z))
         return z
 
     def middle(self) -> dict:
@@ -211,8 +257,8 @@ class Prior:
         out = {"paramset": self.paramset, "parameters": {
             n: {"dist": "loguniform" if s else "uniform", "lower": float(lo), "upper": float(hi)}
             for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
-        if self.shear is not None:
-            out["sampled_as"] = {"parameter": self.shear.name, "offset": repr(self.shear.offset)}
+        if self.shears:
+            out["sampled_as"] = [{"parameter": s.name, "kind": s.kind, "offset": repr(s.offset)} for s in self.shears]
         return out
 
 

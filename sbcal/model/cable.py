@@ -447,12 +447,12 @@ class CableModel(CableBase):
         if start.shape != (2, arms.row.size // n_sets):
             raise ValueError(f"start: shape {start.shape}, expected (2, {arms.row.size // n_sets}): one set's loads "
                              "on these lines")
-        sol = self._newton(table, arms, np.tile(start, (1, n_sets)))
-        lost = ~(sol[1] < self.tol)
-        if lost.any():  # not brought in from the nearby state: from the slipped cable, as without it
-            cold = self._newton(table, arms, self._start(table, arms))
-            sol = (np.where(lost, cold[0], sol[0]), np.where(lost, cold[1], sol[1]), np.where(lost, cold[2], sol[2]))
-        return sol
+        p, err, it = self._newton(table, arms, np.tile(start, (1, n_sets)))
+        lost = np.flatnonzero(~(err < self.tol))
+        if lost.size:  # not brought in from the nearby state: those entries from the slipped cable, as without it
+            sub = arms.take(lost)
+            p[:, lost], err[lost], it[lost] = self._newton(table, sub, self._start(table, sub))
+        return p, err, it
 
     def _run(self, damper, freq_hz, amplitude_mm_pp, segments, continuation, params, full, start=None):
         p, n_sets, in_law = self._parameters(damper, params)

@@ -154,6 +154,22 @@ class HysteresisLaw:
         out = self._rigidity(np.maximum(chi, 0.0), **{k: np.where(ok, v, 1.0) for k, v in p.items()})
         return np.where(ok, out, np.nan)
 
+    def seen_ratios(self, chi_ref: float, **params) -> dict:
+        """Ratio parameters whose part in the bench's curves is over the law's slip wires above ``chi_ref`` only.
+
+        A ratio ``r`` of two of the law's parts (as a point mass over a spread density) of which the bench, whose
+        curvatures all exceed ``chi_ref`` [1/m], sees the second only above ``chi_ref``: the curves pin ``r / g``
+        with ``g`` the share of that part above ``chi_ref``, not ``r``. The cable fit samples ``r / g``
+        (:mod:`sbcal.inference.cable_coords`).
+
+        Returns
+        -------
+        dict
+            Ratio name -> ``ln g`` (broadcast shape of ``params``; ``-inf`` where none is above ``chi_ref``, NaN
+            outside the law's domain); empty for a law without such a ratio (this base class).
+        """
+        return {}
+
     def energy_per_cycle(self, chi_a, **params) -> np.ndarray:
         """``W = pi Im(EJ_slip*) chi_a^2``: friction energy per cycle and unit length [J/m]."""
         return np.pi * self.slip_rigidity(chi_a, **params).imag * np.asarray(chi_a, dtype=float) ** 2

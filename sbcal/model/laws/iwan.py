@@ -205,6 +205,18 @@ class Iwan5Law(HysteresisLaw):
         cont = r * (_power_integral(chi_micro, u, p + 1.0) + chi * _power_integral(u, chi_macro, p))
         return cont + (delta_EJ - k_cont) * np.minimum(chi, chi_macro)
 
+    def seen_ratios(self, chi_ref, **params):
+        """``macro_ratio``: the point mass over the spread density's mass, of which the bench sees the part above
+        ``chi_ref`` (``g = int_max(chi_micro, chi_ref)^chi_macro phi^c / int_chi_micro^chi_macro phi^c``)."""
+        ok = self.valid(**params)
+        p = {k: np.where(ok, v, 1.0) for k, v in self._arrays(params).items()}
+        lo, hi, q = p["chi_micro"], np.where(ok, p["chi_macro"], 2.0), p["density_exponent"] + 1.0
+        above = chi_ref < hi
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g = _power_integral(np.minimum(np.maximum(lo, chi_ref), hi), hi, q) / _power_integral(lo, hi, q)
+            out = np.where(above, np.log(g), -np.inf)
+        return {"macro_ratio": np.where(ok, out, np.nan)}
+
     def steady_loop(self, chi_a, theta, **params):
         """Masing's rule on :meth:`backbone` (exact for parallel Jenkins elements)."""
         return masing_loop(lambda x: self.backbone(x, **params), chi_a, theta)

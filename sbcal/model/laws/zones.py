@@ -97,6 +97,10 @@ class ZonedLaw(HysteresisLaw):
     def steady_loop(self, chi_a: float, theta, **params) -> np.ndarray:
         return self.base.steady_loop(chi_a, theta, **{k: params[k] for k in self.base.parameter_names})
 
+    def seen_ratios(self, chi_ref, **params):
+        """The middle's (its shape parameters are every zone's)."""
+        return self.base.seen_ratios(chi_ref, **{k: params[k] for k in self.base.parameter_names})
+
     def zones(self, params: dict) -> list:
         """Per zone of :data:`ZONES`: ``(name, (start, end) as fractions of the arm from the clamp, law
         parameters, EJ_min ratio)``; values broadcast as given (scalars or per parameter set)."""
