@@ -186,8 +186,8 @@ class SampleResult:
     restarts : tuple of (int, int)
         ``(ensemble, step)`` of each stranded ensemble started again (module docstring); the steps
         before the last are warm-up, not in ``n_steps``.
-    sampled_as : dict, optional
-        The target's sheared coordinate where its prior has one (:meth:`sbcal.inference.priors.Prior.as_dict`'s
+    sampled_as : list of dict, optional
+        The target's moved coordinates where its prior has shears (:meth:`sbcal.inference.priors.Prior.as_dict`'s
         ``sampled_as``): the coordinates the chains, their autocorrelation and R-hat were in.
     """
 
@@ -210,7 +210,7 @@ class SampleResult:
     config: SamplerConfig
     calls: int = 0
     restarts: tuple = ()
-    sampled_as: dict | None = None
+    sampled_as: list | None = None
 
     @property
     def n_chains(self) -> int:
