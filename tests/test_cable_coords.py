@@ -54,7 +54,7 @@ def test_a_shear_is_the_same_box_in_other_coordinates():
         plain.sheared(Shear(name="b", offset=_tilt))
     with pytest.raises(ValueError, match="uniform coordinate"):
         plain.sheared(Shear(name="a", offset=_tilt, kind="scale"))
-    with pytest.raises(ValueError, match="moved once"):
+    with pytest.raises(ValueError, match="at most once"):
         plain.sheared(Shear(name="a", offset=_tilt), Shear(name="a", offset=_tilt))
 
 

@@ -48,7 +48,7 @@ class Shear:
     """One coordinate moved by a function ``o`` of the others.
 
     Two kinds: ``"log"`` moves a log-uniform coordinate, ``z = ln x + o`` (Jacobian 1, the density in the new
-    coordinates is the same); ``"scale"`` scales a uniform one on ``[lower >= 0, upper]``, ``z = x e^o``
+    coordinates is the same); ``"scale"`` scales a uniform one whose box starts at 0 or above, ``z = x e^o``
     (Jacobian ``e^-o``: the density in ``z`` carries ``-o``, :meth:`Prior.log_prob`). ``o`` reads the other
     parameters only, so the map is triangular and its inverse explicit.
 
@@ -132,7 +132,7 @@ class Prior:
         object.__setattr__(self, "_box", (self.z_lower, self.z_upper))  # of the unmoved coordinates
         moved = [s.name for s in self.shears]
         if len(set(moved)) < len(moved):
-            raise ValueError(f"a coordinate is moved once: {moved}")
+            raise ValueError(f"each coordinate is moved at most once: {moved}")
         lo, hi = self.z_lower.copy(), self.z_upper.copy()
         for s in self.shears:
             i = self.names.index(s.name)
