@@ -1,7 +1,7 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
 Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix]
-       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only nautilus]
+       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only emcee-no-redraw nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
 Posteriors (``--posteriors``):
@@ -33,6 +33,9 @@ Engines (``--engines``), each to sbcal's convergence rule where it has one:
 - ``emcee-share-only``: ``emcee`` with ``delta_EJ``'s shear alone, the law's seen ratios (``iwan5``'s
   ``macro_ratio``, :class:`sbcal.inference.cable_coords.SeenRatio`) sampled as they are: the cable fit before the
   second shear, its baseline;
+- ``emcee-no-redraw``: ``emcee`` without the redraw of the law's unseen onsets
+  (:attr:`sbcal.inference.priors.Prior.redrawn`, ``SamplerConfig.redraw_every = 0``): the cable fit before it, its
+  baseline;
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -124,8 +127,11 @@ def share_only_target(like, start):
     return JointLikelihood(target.likes, replace(pr, shears=pr.shears[-1:]), target.model)
 
 
-def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True, share_only=False) -> dict:
+def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True, share_only=False,
+              redraw=True) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
+    if not redraw:
+        cfg = replace(cfg, redraw_every=0)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:
@@ -155,6 +161,7 @@ def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, sh
     return {"wall_s": wall, "converged": res.converged, "r_hat_max": c["r_hat_max"], "ess_min": worst_ess,
             "tau_max": c["tau_max"], "steps": res.n_steps, "ess_per_min": worst_ess / (wall / 60),
             "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200], "calls": res.calls,
+            "redrawn": list(res.redrawn) if res.config.redraw_every else [],
             "calls_per_step": res.calls / res.n_steps, "restarts": [list(x) for x in res.restarts],
             "mean": {k: float(np.mean(v)) for k, v in flat.items()}, "tau": {k: float(v) for k, v in res.tau.items()}}
 
@@ -189,7 +196,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix"])
     ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-unsheared", "emcee-share-only",
-                                                                    "nautilus"])
+                                                                    "emcee-no-redraw", "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=4100)
@@ -207,7 +214,8 @@ def main(argv=None) -> int:
             else:
                 r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
                               screen={"emcee-screen": True, "emcee-plain": False}.get(engine), start=start,
-                              shear=engine != "emcee-unsheared", share_only=engine == "emcee-share-only")
+                              shear=engine != "emcee-unsheared", share_only=engine == "emcee-share-only",
+                              redraw=engine != "emcee-no-redraw")
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
                       f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step"

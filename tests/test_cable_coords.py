@@ -9,7 +9,8 @@ import pytest
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.labels import state_tests
 from sbcal.data.readers import default_bench_path, load_bench
-from sbcal.inference.cable_coords import SHARE_FLOOR, SeenRatio, SeenShare, reference_curvature, seen_share_target
+from sbcal.inference.cable_coords import (SHARE_FLOOR, SeenRatio, SeenShare, reference_curvature, seen_share_target,
+                                         unseen_onsets)
 from sbcal.inference.cable_fit import _near, cable_likelihood
 from sbcal.inference.priors import Prior, Shear
 from sbcal.model.laws import law_for
@@ -135,6 +136,15 @@ def test_the_seen_share_is_the_laws_held_rigidity_at_the_reference():
     assert np.exp(SeenShare("bouc_wen", 1e-4)(q)) == pytest.approx(ref, rel=1e-12) and 0 < ref[0] < 1
 
 
+def test_the_onsets_below_the_reference_are_redrawn():
+    iwan = {"delta_EJ": 10.0, "chi_micro": 1e-6, "chi_macro": 1e-2, "density_exponent": -1.0, "macro_ratio": 0.1}
+    assert unseen_onsets("iwan5", 1e-4, iwan) == ("chi_micro",)
+    assert unseen_onsets("iwan5_zoned", 1e-4, {**iwan, "clamp_zone": 0.1}) == ("chi_micro",)
+    assert unseen_onsets("iwan5", 1e-7, iwan) == ()  # every curvature scale above the bench's least
+    assert unseen_onsets("iwan5", 0.1, iwan) == ("chi_micro", "chi_macro")
+    assert unseen_onsets("bouc_wen", 1e-4, {"delta_EJ": 1.0, "chi_slip": 1e-3, "sharpness": 1.0}) == ()
+
+
 @pytest.mark.parametrize("law", ["iwan5", "iwan5_zoned", "bouc_wen"])
 def test_the_sheared_cable_posterior_is_the_same_posterior(damper1, law):
     bench = clean_bench(load_bench(default_bench_path()), dampers=["damper1"])
@@ -146,6 +156,7 @@ def test_the_sheared_cable_posterior_is_the_same_posterior(damper1, law):
     assert target.prior.shears[-1].offset == SeenShare(law, chi) and target.model is like.model
     ratios = [s.name for s in target.prior.shears[:-1]]
     assert ratios == (["macro_ratio"] if law.startswith("iwan5") else [])
+    assert target.prior.redrawn == unseen_onsets(law, chi, start)
     rng = np.random.default_rng(5)
     z = like.prior.sample(rng, 48)
     lp = like(z)

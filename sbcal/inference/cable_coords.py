@@ -20,6 +20,12 @@ engine samples the ratio over the share ``g`` it sees, ``r / g`` (:class:`SeenRa
 the prior's density). Its ridge with the onset was the zoned posterior's slowest pair after the first shear; with
 both, the in-family zoned posterior converges in 9 600 steps, tau 91 (``docs/cable.md``). The stored draws are
 natural values (:class:`sbcal.inference.priors.Shear`).
+
+Left after both shears, on a posterior the zoned law fits but does not hold (the ``zoned_iwan5`` row of the cross-law
+matrix): the micro-slip onset, a narrow core far below the reference and a flat shoulder up to it at the same
+log-density, which differential evolution crosses in hundreds of steps (tau 563). A curvature scale of the law that
+starts below the reference is such a parameter: the engine redraws it from its whole box every few steps, the others
+held (:attr:`sbcal.inference.priors.Prior.redrawn`, :func:`unseen_onsets`).
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from ..model.laws.zones import ZonedLaw
 from .likelihood import JointLikelihood
 from .priors import Shear
 
-__all__ = ["SeenRatio", "SeenShare", "reference_curvature", "seen_share_target"]
+__all__ = ["SeenRatio", "SeenShare", "reference_curvature", "seen_share_target", "unseen_onsets"]
 
 SHARE_FLOOR = -12.0
 """ln of the least share the coordinate follows: below it (a law whose wires all slip below the bench's
@@ -107,18 +113,28 @@ def reference_curvature(like: JointLikelihood, params: dict) -> float:
     return float(top.min())
 
 
+def unseen_onsets(law: str, chi_ref: float, start: dict) -> tuple:
+    """The curvature scales (unit 1/m) of ``law``'s middle that ``start`` (natural values by name) puts below
+    ``chi_ref`` [1/m]: below every curvature of the bench, the data see them only through the shares above, and
+    over most of their box the posterior is the prior's."""
+    return tuple(p.name for p in _middle_law(law).parameters
+                 if p.unit == "1/m" and p.name in start and start[p.name] < chi_ref)
+
+
 def seen_share_target(like: JointLikelihood, start: dict) -> JointLikelihood:
     """``like`` in the sheared coordinates: the law's seen ratios (:class:`SeenRatio`) first, then
     ``u = ln delta_EJ + ln s`` (:class:`SeenShare`, which reads them), the reference curvature at ``start`` (natural
-    values by name); ``like`` itself where its law has no ``delta_EJ`` on a log scale."""
+    values by name), and its :func:`unseen_onsets` on a log scale redrawn; ``like`` itself where its law has no
+    ``delta_EJ`` on a log scale."""
     prior = like.prior
     law = getattr(like.model, "law", None)
     if law is None or "delta_EJ" not in prior.names or not prior.box("delta_EJ")[0]:
         return like
     chi = reference_curvature(like, start)
     middle = _middle_law(law)
+    onsets = [n for n in unseen_onsets(law, chi, start) if n in prior.names and prior.box(n)[0]]
     seen = middle.seen_ratios(chi, **{k: start[k] for k in middle.parameter_names})
     ratios = [Shear(name=n, offset=SeenRatio(law, chi, n), lower=0.0, upper=RATIO_CEILING, kind="scale")
               for n in seen if n in prior.names and not prior.box(n)[0] and prior.box(n)[1] >= 0]
     share = Shear(name="delta_EJ", offset=SeenShare(law, chi), lower=SHARE_FLOOR)
-    return JointLikelihood(like.likes, prior.sheared(*ratios, share), like.model)
+    return JointLikelihood(like.likes, prior.sheared(*ratios, share).redrawing(*onsets), like.model)

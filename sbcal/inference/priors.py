@@ -93,6 +93,10 @@ class Prior:
         those of the shears before it, so the natural values are recovered in this order. :attr:`z_lower`,
         :attr:`z_upper` are then the box of the moved coordinates, and :meth:`log_prob` the box of ``x`` plus the
         ``"scale"`` shears' log-Jacobian.
+    redrawn : tuple of str
+        Parameters the data leave prior-dominated over part of their box (:meth:`redrawing`): besides its moves,
+        the engine redraws each from its whole box now and then, the others held
+        (:class:`sbcal.inference.sampler.SamplerConfig`'s ``redraw_every``).
 
     Construct with :meth:`from_boxes` (any order of names); code outside this class reaches a
     parameter by its name (:meth:`params`, :meth:`z_of`), never by its position.
@@ -104,6 +108,7 @@ class Prior:
     lower: np.ndarray
     upper: np.ndarray
     shears: tuple = ()
+    redrawn: tuple = ()
 
     @classmethod
     def from_boxes(cls, paramset: str, boxes: dict) -> "Prior":
@@ -130,6 +135,9 @@ class Prior:
             z = np.where(self.log_scale, np.log(np.where(self.log_scale, bound, 1.0)), bound)
             object.__setattr__(self, name, z)
         object.__setattr__(self, "_box", (self.z_lower, self.z_upper))  # of the unmoved coordinates
+        unknown = [n for n in self.redrawn if n not in self.names]
+        if unknown or len(set(self.redrawn)) < len(self.redrawn):
+            raise ValueError(f"redrawn parameters must be distinct parameters of the prior: {self.redrawn}")
         moved = [s.name for s in self.shears]
         if len(set(moved)) < len(moved):
             raise ValueError(f"each coordinate is moved at most once: {moved}")
@@ -154,6 +162,10 @@ class Prior:
     def sheared(self, *shears: Shear) -> "Prior":
         """The same boxes sampled in the coordinates ``shears`` move (after this prior's own)."""
         return replace(self, shears=self.shears + tuple(shears))
+
+    def redrawing(self, *names: str) -> "Prior":
+        """The same prior with ``names`` redrawn from their boxes by the engine (:attr:`redrawn`)."""
+        return replace(self, redrawn=self.redrawn + tuple(names))
 
     def _offset(self, k: int, x) -> tuple[int, np.ndarray]:
         """Shear ``k``'s ``(column, o)`` at natural values ``x`` (n, ndim), ``o`` clipped; its offset is given the
@@ -259,6 +271,8 @@ class Prior:
             for n, s, lo, hi in zip(self.names, self.log_scale, self.lower, self.upper)}}
         if self.shears:
             out["sampled_as"] = [{"parameter": s.name, "kind": s.kind, "offset": repr(s.offset)} for s in self.shears]
+        if self.redrawn:
+            out["redrawn"] = list(self.redrawn)
         return out
 
 

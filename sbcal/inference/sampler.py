@@ -115,6 +115,10 @@ class SamplerConfig:
         ensemble's kept steps, and call the target only on those that pass (delayed acceptance,
         :mod:`sbcal.inference.surrogate`: exact whatever the quadratic; per ensemble and round, used only
         where it predicts held-out steps). For targets whose call costs milliseconds per set (a cable state).
+    redraw_every : int
+        Every this many steps, each parameter the target's prior names in ``redrawn``
+        (:attr:`sbcal.inference.priors.Prior.redrawn`) is redrawn in every walker, uniform over its box, the others
+        held, accepted by Metropolis-Hastings (Metropolis-within-Gibbs; :class:`_Ensembles`); 0 never.
     """
 
     nwalkers: int = 24
@@ -131,6 +135,7 @@ class SamplerConfig:
     independence: float = 0.5
     bend: int = 0
     screen: bool = False
+    redraw_every: int = 2
 
     def __post_init__(self):
         if self.n_ensembles < POLICY["min_ensembles"]:
@@ -143,6 +148,8 @@ class SamplerConfig:
             raise ValueError(f"bend {self.bend}: a number of directions, >= 0")
         if not 0 <= self.independence < 1:
             raise ValueError(f"independence {self.independence}: a fraction in [0, 1)")
+        if self.redraw_every < 0:
+            raise ValueError(f"redraw_every {self.redraw_every}: a number of steps, >= 0 (0: never)")
 
     def policy(self) -> str:
         """The rule this configuration applies, in words (stored and shown with every result)."""
@@ -189,6 +196,8 @@ class SampleResult:
     sampled_as : list of dict, optional
         The target's moved coordinates where its prior has shears (:meth:`sbcal.inference.priors.Prior.as_dict`'s
         ``sampled_as``): the coordinates the chains, their autocorrelation and R-hat were in.
+    redrawn : tuple of str
+        The parameters redrawn from their boxes every ``config.redraw_every`` steps (:class:`_Ensembles`).
     """
 
     names: tuple
@@ -211,6 +220,7 @@ class SampleResult:
     calls: int = 0
     restarts: tuple = ()
     sampled_as: list | None = None
+    redrawn: tuple = ()
 
     @property
     def n_chains(self) -> int:
@@ -241,7 +251,8 @@ class SampleResult:
                 "ess_bulk_min": self.ess_bulk_min, "ess_tail_min": self.ess_tail_min,
                 "tau_max": float(max(self.tau.values())), "n_steps": self.n_steps, "n_chains": self.n_chains,
                 "restarts": [list(r) for r in self.restarts], "policy": self.config.policy(),
-                **({"sampled_as": self.sampled_as} if self.sampled_as else {})}
+                **({"sampled_as": self.sampled_as} if self.sampled_as else {}),
+                **({"redrawn": list(self.redrawn)} if self.redrawn and self.config.redraw_every else {})}
 
     def config_dict(self) -> dict:
         return asdict(self.config)
@@ -307,6 +318,15 @@ class _Ensembles(emcee.moves.Move):
     rejected on the screen's ratio and the target is called only on those that pass, accepted by the
     corrected ratio (delayed acceptance).
 
+    Every ``redraw[1]``-th step (of this round), each coordinate in ``redraw[0]`` is then redrawn in every walker,
+    the others held, accepted with ``p(x') q(x) / (p(x) q(x'))``: an independence move on one coordinate
+    (Metropolis-within-Gibbs, exact whatever the target). ``q`` is uniform over the coordinate's box in the sampled
+    coordinates, mixed half and half, where ``redraw[2]`` gives the ensemble one, with a uniform over the span its
+    kept steps covered in the last round (a tenth of the span beyond either end, within the box; fixed for the
+    round, as the independence proposals). It is for a parameter the data leave prior-dominated over part of its
+    box: the micro-slip onset below every bench curvature, whose flat shoulder beside a narrow core differential
+    evolution crosses in hundreds of steps (``docs/cable.md``, "The redraw").
+
     An ensemble never sees another's walkers and draws every random number from its own generator, so
     the ensembles are independent, independently seeded chains: the same as running them one by one,
     in any grouping over processes. Each draws its numbers in a few calls a half-step; one compiled loop
@@ -314,8 +334,11 @@ class _Ensembles(emcee.moves.Move):
     """
 
     def __init__(self, n_walkers: int, generators, proposals=None, independence: float = 0.0, box=(None, None),
-                 screens=None):
+                 screens=None, redraw=((), 0, None)):
         self.n_walkers, self.generators = n_walkers, list(generators)
+        self.redraw_cols, self.redraw_every = tuple(redraw[0]), int(redraw[1])
+        self.spans = list(redraw[2]) if redraw[2] is not None else [None] * len(self.generators)
+        self.steps = 0  # steps of this round: when to redraw
         proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
         ndim = next((p.mean.size for p in proposals if p is not None), 0)
         # the proposals as arrays for the compiled moves; independence moves only where there is one
@@ -368,21 +391,63 @@ class _Ensembles(emcee.moves.Move):
             ok = new_lp - state.log_prob[idx] > log_u
             coords[idx[ok]], state.log_prob[idx[ok]] = q[ok], new_lp[ok]
             accepted[idx[ok]] = True
+        self.steps += 1
+        if self.redraw_every and self.redraw_cols and self.steps % self.redraw_every == 0:
+            for k, j in enumerate(self.redraw_cols):
+                self._redraw(model, state, accepted, k, j)
         return state, accepted
+
+    def _redraw(self, model, state, accepted, k: int, j: int):
+        """Coordinate ``j`` (the ``k``-th redrawn) of every walker redrawn, accepted by Metropolis-Hastings."""
+        w, coords = self.n_walkers, state.coords
+        lo, hi = self.box[0][j], self.box[1][j]
+        q = coords.copy()
+        log_u = np.empty(len(q))
+        for e, (rng, span) in enumerate(zip(self.generators, self.spans)):
+            rows = slice(e * w, (e + 1) * w)
+            new = rng.uniform(lo, hi, size=w)
+            if span is not None:  # half from the span of the kept steps
+                a, b = span[k]
+                new = np.where(rng.random(w) < 0.5, new, rng.uniform(a, b, size=w))
+
+                def log_q(v):
+                    return np.log(0.5 / (hi - lo) + np.where((v >= a) & (v <= b), 0.5 / (b - a), 0.0))
+
+                log_u[rows] = np.log(rng.random(w)) + log_q(new) - log_q(coords[rows, j])
+            else:
+                log_u[rows] = np.log(rng.random(w))
+            q[rows, j] = new
+        new_lp = np.asarray(model.log_prob_fn(q), dtype=float)
+        if np.isnan(new_lp).any():
+            raise ValueError("the log-probability returned NaN")
+        self.calls += len(q)
+        ok = new_lp - state.log_prob > log_u
+        coords[ok], state.log_prob[ok] = q[ok], new_lp[ok]
+        accepted[ok] = True
+
+
+def _spans(kept, lower, upper) -> np.ndarray:
+    """``(k, 2)``: the span each of ``k`` coordinates covered in an ensemble's kept steps ``(steps, walkers, k)``, a
+    tenth of it beyond either end, within ``lower``-``upper`` (the redraw's; :class:`_Ensembles`)."""
+    a, b = kept.min(axis=(0, 1)), kept.max(axis=(0, 1))
+    pad = 0.1 * (b - a) + 1e-9 * (upper - lower)
+    return np.column_stack([np.maximum(a - pad, lower), np.minimum(b + pad, upper)])
 
 
 def _advance(job):
     """Run some ensembles (side by side) ``steps`` further; module-level so a process can run it.
 
     ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), proposals (G,),
-    independence, steps, screens (G,))``; returns the chain, the log-probabilities, the final coords/log-probs,
+    independence, steps, screens (G,), redraw_every, spans (G,))``; returns the chain, the log-probabilities, the final coords/log-probs,
     the generators' states, the acceptance counts per walker and the parameter sets the target was called on.
     """
-    target, coords, log_prob, gen_states, proposals, independence, steps, screens = job
+    target, coords, log_prob, gen_states, proposals, independence, steps, screens, redraw_every, spans = job
     generators = [_generator(st) for st in gen_states]
     n, ndim = coords.shape
+    prior = target.prior
+    redraw = ([prior.names.index(nm) for nm in getattr(prior, "redrawn", ())], redraw_every, spans)
     move = _Ensembles(n // len(generators), generators, proposals, independence,
-                      (target.prior.z_lower, target.prior.z_upper), screens)
+                      (prior.z_lower, prior.z_upper), screens, redraw)
     sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
     with one_blas_thread():
         state = sampler.run_mcmc(emcee.State(coords, log_prob=log_prob), steps, progress=False)
@@ -487,6 +552,9 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         first = MapProposal.ellipsoid(z0, capped_cov(prior, cov)) if full else None
         proposals = [first] * config.n_ensembles
         screens = [None] * config.n_ensembles
+        # the redraw's spans (:class:`_Ensembles`): none in the first round
+        redrawn = [names.index(nm) for nm in getattr(prior, "redrawn", ())] if config.redraw_every else []
+        spans = [None] * config.n_ensembles
         calls, spent, restarts = 0, 0, []  # spent: warm-up steps before the last restart
         with process_pool(len(groups)) as pool:
             while True:
@@ -495,7 +563,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
                     jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp],
                                  [proposals[e] for e in grp], config.independence, block,
-                                 [screens[e] for e in grp]))
+                                 [screens[e] for e in grp], config.redraw_every, [spans[e] for e in grp]))
                 pieces_c, pieces_l = [], []
                 for grp, (c, lp, cs, ls, gs, acc, k) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
@@ -528,6 +596,8 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 block = min(max(more, n // 10, 50), n, config.max_steps - spent - n)
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [fit_proposal(c[burn:], config.bend) for c in per]
+                if redrawn:
+                    spans = [_spans(c[burn:, :, redrawn], prior.z_lower[redrawn], prior.z_upper[redrawn]) for c in per]
                 if config.screen:
                     box = (prior.z_lower, prior.z_upper)
                     screens = [fit_surrogate(c[burn:], lp_e[burn:], box, tp)
@@ -535,7 +605,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 if lost:  # started again; the run so far is every ensemble's warm-up
                     fresh = _restart(target, coords, log_prob, gens, lost, best, nwalkers)
                     for e in lost:
-                        proposals[e], screens[e] = fresh, None
+                        proposals[e], screens[e], spans[e] = fresh, None, None
                     restarts.append((tuple(lost), spent + n))
                     spent += n
                     chains, lps, n = [], [], 0
@@ -558,5 +628,5 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
         wall_s=time.perf_counter() - t0, config=config, calls=int(calls),
         restarts=tuple((e, step) for lost, step in restarts for e in lost),
-        sampled_as=prior.as_dict().get("sampled_as"),
+        sampled_as=prior.as_dict().get("sampled_as"), redrawn=tuple(getattr(prior, "redrawn", ())),
     )
