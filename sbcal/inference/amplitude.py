@@ -99,14 +99,7 @@ class _Target:
     ``prior`` and defines ``log_likelihood(params) -> (n,)``."""
 
     def __call__(self, z):
-        z = np.atleast_2d(z)
-        out = self.prior.log_prob(z)
-        ok = np.isfinite(out)
-        if ok.any():
-            with np.errstate(all="ignore"):
-                lp = self.log_likelihood(self.prior.params(z[ok]))
-            out[ok] += np.where(np.isfinite(lp), lp, -np.inf)
-        return out
+        return self.prior.log_posterior(z, self.log_likelihood)
 
 
 class _LawTarget(_Target):

@@ -190,19 +190,15 @@ class TestLikelihood:
         return mvt_log_likelihood(np.ascontiguousarray(mu, dtype=float), *self._density, np.ascontiguousarray(s2))
 
     def __call__(self, z) -> np.ndarray:
-        z = np.atleast_2d(z)
-        out = self.prior.log_prob(z)
-        ok = np.isfinite(out)
-        if ok.any():
-            params = self.prior.params(z[ok])
-            valid = self.valid(params)
-            lp = np.full(int(ok.sum()), -np.inf)
-            if valid.any():
-                with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-                    lp[valid] = self.log_likelihood({k: v[valid] for k, v in params.items()})
-            lp[~np.isfinite(lp)] = -np.inf  # a NaN would stop emcee
-            out[ok] += lp  # the prior's log-density (0 in a box) plus the likelihood
-        return out
+        return self.prior.log_posterior(z, self._valid_log_likelihood)
+
+    def _valid_log_likelihood(self, params: dict) -> np.ndarray:
+        """:meth:`log_likelihood` where :meth:`valid`, ``-inf`` elsewhere."""
+        valid = self.valid(params)
+        lp = np.full(valid.shape, -np.inf)
+        if valid.any():
+            lp[valid] = self.log_likelihood({k: v[valid] for k, v in params.items()})
+        return lp
 
     # -- by run, for LOO, checks and predictions -----------------------------------------------
     def _conditional(self, mu, s2, sig2, dsum, ss, m):
@@ -326,11 +322,4 @@ class JointLikelihood:
                                for lk, mu in zip(self.likes, self.predict(params))], axis=1)
 
     def __call__(self, z) -> np.ndarray:
-        z = np.atleast_2d(z)
-        out = self.prior.log_prob(z)
-        ok = np.isfinite(out)
-        if ok.any():
-            with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-                lp = self.log_likelihood(self.prior.params(z[ok]))
-            out[ok] += np.where(np.isfinite(lp), lp, -np.inf)
-        return out
+        return self.prior.log_posterior(z, self.log_likelihood)

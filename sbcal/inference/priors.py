@@ -239,14 +239,27 @@ class Prior:
     def log_prob(self, z) -> np.ndarray:
         """Log-density in ``z``: shape ``(n,)``, ``-inf`` outside the box of ``x``; inside 0, plus ``-o`` of each
         ``"scale"`` shear (its log-Jacobian)."""
-        z = np.atleast_2d(z)
-        jac = 0.0
-        if self.shears:  # the box of x: the moved coordinates back first
-            z, _, jac = self._unmoved(z)
+        return self._density(z)[0]
+
+    def _density(self, z) -> tuple[np.ndarray, np.ndarray]:
+        """``(log_prob, x)`` at sampled coordinates ``z`` (n, ndim), the shears undone once."""
+        u, x, jac = self._unmoved(z)
         lo, hi = self._box
         with np.errstate(invalid="ignore"):
-            inside = np.all((z >= lo) & (z <= hi), axis=1)
-        return np.where(inside, jac, -np.inf)
+            inside = np.all((u >= lo) & (u <= hi), axis=1)
+        return np.where(inside, jac, -np.inf), x
+
+    def log_posterior(self, z, log_likelihood) -> np.ndarray:
+        """The engine's target: :meth:`log_prob` plus ``log_likelihood(params) -> (n,)`` (natural values by name)
+        at the sets inside the box; ``(n,)``, ``-inf`` outside it and where the likelihood is not finite (a NaN
+        would stop the sampler)."""
+        out, x = self._density(z)
+        ok = np.isfinite(out)
+        if ok.any():
+            with np.errstate(all="ignore"):
+                lp = np.asarray(log_likelihood({n: x[ok, i] for i, n in enumerate(self.names)}), dtype=float)
+            out[ok] += np.where(np.isfinite(lp), lp, -np.inf)
+        return out
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """``n`` draws in ``z``, shape ``(n, ndim)`` (uniform in the boxes of ``x``; with shears, rows of NaN where
