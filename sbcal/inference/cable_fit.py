@@ -63,16 +63,17 @@ def compared_laws(laws, tests) -> tuple:
 def cable_config(ndim: int, *, workers: int = 2, max_steps: int | None = None, max_draws: int = 250) -> SamplerConfig:
     """The engine's settings for a cable fit (the policy is the engine's; a cap that keeps a stuck
     fit within minutes: the cable model costs ~1 ms per parameter set). The cap, unless given, is
-    ``max(8000, 800 ndim)`` steps: differential evolution's autocorrelation time grows with the dimension (tau
-    6-10 ``ndim`` steps measured on the cable posteriors) and the rule keeps 50 of them in the second half of the
-    run, so a 17-parameter zoned law needs ~10 000 steps (9 600 in-family, ``docs/cable.md``) where a uniform
-    law's 6-10 parameters converge in 1 000-6 000. The independence proposal bends
+    ``max(8000, 1200 ndim)`` steps: differential evolution's autocorrelation time grows with the dimension (tau
+    5-10 ``ndim`` steps measured on the cable posteriors) and the rule keeps 50 of them in the second half of the
+    run, so a 17-parameter zoned law needs 100 tau, 9 600 steps in-family and ~17 000 on the cross-law matrix's
+    misspecified zoned row (tau 172 with the redraw, ``docs/cable.md``), where a uniform law's 6-10 parameters
+    converge in 1 000-6 000. The independence proposal bends
     along up to six of the posterior's widest directions (a one-test state's law is a thin curved ridge),
     and the first half of every chain is burn-in: the early rounds' proposals, fitted before the chain
     reached the ridge's tails, read them short when a fifth is discarded (``docs/calibration.md``). Where a
     quadratic of the log-density predicts the kept steps, proposals are screened by it before the model is
     called (:mod:`sbcal.inference.surrogate`; a multi-test state's law: half the calls)."""
-    return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps or max(8000, 800 * ndim), max_draws=max_draws,
+    return SamplerConfig(nwalkers=2 * ndim + 2, max_steps=max_steps or max(8000, 1200 * ndim), max_draws=max_draws,
                          first_steps=300,
                          de_population=4 * ndim + 8, de_generations=60, workers=workers, bend=6,
                          burn_fraction=0.5, screen=True)
