@@ -117,8 +117,9 @@ class SamplerConfig:
         where it predicts held-out steps). For targets whose call costs milliseconds per set (a cable state).
     redraw_every : int
         Every this many steps, each parameter the target's prior names in ``redrawn``
-        (:attr:`sbcal.inference.priors.Prior.redrawn`) is redrawn in every walker, uniform over its box, the others
-        held, accepted by Metropolis-Hastings (Metropolis-within-Gibbs; :class:`_Ensembles`); 0 never.
+        (:attr:`sbcal.inference.priors.Prior.redrawn`) is redrawn in every walker, from its box and the span of the
+        ensemble's kept steps, the others held, accepted by Metropolis-Hastings (Metropolis-within-Gibbs;
+        :class:`_Ensembles`); 0 never.
     """
 
     nwalkers: int = 24
@@ -197,7 +198,7 @@ class SampleResult:
         The target's moved coordinates where its prior has shears (:meth:`sbcal.inference.priors.Prior.as_dict`'s
         ``sampled_as``): the coordinates the chains, their autocorrelation and R-hat were in.
     redrawn : tuple of str
-        The parameters redrawn from their boxes every ``config.redraw_every`` steps (:class:`_Ensembles`).
+        The parameters the target's prior names redrawn (every ``config.redraw_every`` steps; :class:`_Ensembles`).
     """
 
     names: tuple
@@ -445,7 +446,7 @@ def _advance(job):
     generators = [_generator(st) for st in gen_states]
     n, ndim = coords.shape
     prior = target.prior
-    redraw = ([prior.names.index(nm) for nm in getattr(prior, "redrawn", ())], redraw_every, spans)
+    redraw = ([prior.names.index(nm) for nm in prior.redrawn], redraw_every, spans)
     move = _Ensembles(n // len(generators), generators, proposals, independence,
                       (prior.z_lower, prior.z_upper), screens, redraw)
     sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
@@ -553,7 +554,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         proposals = [first] * config.n_ensembles
         screens = [None] * config.n_ensembles
         # the redraw's spans (:class:`_Ensembles`): none in the first round
-        redrawn = [names.index(nm) for nm in getattr(prior, "redrawn", ())] if config.redraw_every else []
+        redrawn = [names.index(nm) for nm in prior.redrawn] if config.redraw_every else []
         spans = [None] * config.n_ensembles
         calls, spent, restarts = 0, 0, []  # spent: warm-up steps before the last restart
         with process_pool(len(groups)) as pool:
@@ -628,5 +629,5 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         start={nm: float(v) for nm, v in zip(names, prior.to_natural(z0[None])[0])},
         wall_s=time.perf_counter() - t0, config=config, calls=int(calls),
         restarts=tuple((e, step) for lost, step in restarts for e in lost),
-        sampled_as=prior.as_dict().get("sampled_as"), redrawn=tuple(getattr(prior, "redrawn", ())),
+        sampled_as=prior.as_dict().get("sampled_as"), redrawn=prior.redrawn,
     )
