@@ -136,13 +136,23 @@ def test_the_seen_share_is_the_laws_held_rigidity_at_the_reference():
     assert np.exp(SeenShare("bouc_wen", 1e-4)(q)) == pytest.approx(ref, rel=1e-12) and 0 < ref[0] < 1
 
 
-def test_the_onsets_below_the_reference_are_redrawn():
+def test_the_onsets_that_can_lie_below_the_reference_are_redrawn():
     iwan = {"delta_EJ": 10.0, "chi_micro": 1e-6, "chi_macro": 1e-2, "density_exponent": -1.0, "macro_ratio": 0.1}
-    assert unseen_onsets("iwan5", 1e-4, iwan) == ("chi_micro",)
-    assert unseen_onsets("iwan5_zoned", 1e-4, {**iwan, "clamp_zone": 0.1}) == ("chi_micro",)
-    assert unseen_onsets("iwan5", 1e-7, iwan) == ()  # every curvature scale above the bench's least
-    assert unseen_onsets("iwan5", 0.1, iwan) == ("chi_micro", "chi_macro")
-    assert unseen_onsets("bouc_wen", 1e-4, {"delta_EJ": 1.0, "chi_slip": 1e-3, "sharpness": 1.0}) == ()
+    boxes = {"delta_EJ": (True, 1.0, 100.0), "chi_micro": (True, 1e-8, 1e-2), "chi_macro": (True, 1e-4, 1.0),
+             "density_exponent": (False, -2.4, 2.0), "macro_ratio": (False, 0.0, 5.0)}
+    prior = Prior.from_boxes("iwan5", boxes)
+    assert unseen_onsets("iwan5", 1e-4, iwan, prior) == ("chi_micro",)
+    # the onset started above the bench's least curvature: its box still reaches below it
+    assert unseen_onsets("iwan5", 1e-4, {**iwan, "chi_micro": 1e-3}, prior) == ("chi_micro",)
+    assert unseen_onsets("iwan5", 1e-9, iwan, prior) == ()  # every box above the bench's least curvature
+    # the law's scale (where the wires slip) only where it starts below
+    assert unseen_onsets("iwan5", 2e-4, iwan, prior) == ("chi_micro",)
+    assert unseen_onsets("iwan5", 0.1, iwan, prior) == ("chi_micro", "chi_macro")
+    zoned = Prior.from_boxes("z", {**boxes, "clamp_zone": (False, 0.0, 0.5)})
+    assert unseen_onsets("iwan5_zoned", 1e-4, {**iwan, "clamp_zone": 0.1}, zoned) == ("chi_micro",)
+    bw = Prior.from_boxes("bw", {"delta_EJ": (True, 1.0, 100.0), "chi_slip": (True, 1e-6, 1.0),
+                                 "sharpness": (False, 0.5, 4.0)})
+    assert unseen_onsets("bouc_wen", 1e-4, {"delta_EJ": 1.0, "chi_slip": 1e-3, "sharpness": 1.0}, bw) == ()
 
 
 @pytest.mark.parametrize("law", ["iwan5", "iwan5_zoned", "bouc_wen"])
@@ -156,7 +166,8 @@ def test_the_sheared_cable_posterior_is_the_same_posterior(damper1, law):
     assert target.prior.shears[-1].offset == SeenShare(law, chi) and target.model is like.model
     ratios = [s.name for s in target.prior.shears[:-1]]
     assert ratios == (["macro_ratio"] if law.startswith("iwan5") else [])
-    assert target.prior.redrawn == unseen_onsets(law, chi, start)
+    assert target.prior.redrawn == unseen_onsets(law, chi, start, like.prior)
+    assert target.prior.redrawn == (("chi_micro",) if law.startswith("iwan5") else ())
     rng = np.random.default_rng(5)
     z = like.prior.sample(rng, 48)
     lp = like(z)

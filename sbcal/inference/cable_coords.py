@@ -24,7 +24,7 @@ natural values (:class:`sbcal.inference.priors.Shear`).
 Left after both shears, on a posterior the zoned law fits but does not hold (the ``zoned_iwan5`` row of the cross-law
 matrix): the micro-slip onset, a narrow core far below the reference and a flat shoulder up to it at the same
 log-density, which differential evolution crosses in hundreds of steps (tau 563). A curvature scale of the law that
-starts below the reference is such a parameter: the engine redraws it from its whole box every few steps, the others
+can lie below the reference is such a parameter: the engine redraws it from its whole box every few steps, the others
 held (:attr:`sbcal.inference.priors.Prior.redrawn`, :func:`unseen_onsets`).
 """
 
@@ -113,12 +113,21 @@ def reference_curvature(like: JointLikelihood, params: dict) -> float:
     return float(top.min())
 
 
-def unseen_onsets(law: str, chi_ref: float, start: dict) -> tuple:
-    """The curvature scales (unit 1/m) of ``law``'s middle that ``start`` (natural values by name) puts below
-    ``chi_ref`` [1/m]: below every curvature of the bench, the data see them only through the shares above, and
-    over most of their box the posterior is the prior's."""
-    return tuple(p.name for p in _middle_law(law).parameters
-                 if p.unit == "1/m" and p.name in start and start[p.name] < chi_ref)
+def unseen_onsets(law: str, chi_ref: float, start: dict, prior) -> tuple:
+    """The curvature scales (unit 1/m, log-uniform in ``prior``) of ``law``'s middle that may lie below ``chi_ref``
+    [1/m], below every curvature of the bench, where the data see them only through the shares above and the
+    posterior is the prior's over most of their box: the law's onsets (every curvature scale but its :attr:`scale`,
+    where the wires slip) whose box reaches below ``chi_ref``, and any that ``start`` (natural values by name) puts
+    there. Not the start alone: on the cross-law matrix's zoned row the uniform fit's median put ``chi_micro`` above
+    the reference and the zoned posterior spread far below it (tau 593 without the redraw)."""
+    lw = _middle_law(law)
+    out = []
+    for p in lw.parameters:
+        if p.unit != "1/m" or p.name not in prior.names or not prior.box(p.name)[0]:
+            continue
+        if (p.name != lw.scale and prior.box(p.name)[1] < chi_ref) or start[p.name] < chi_ref:
+            out.append(p.name)
+    return tuple(out)
 
 
 def seen_share_target(like: JointLikelihood, start: dict) -> JointLikelihood:
@@ -132,7 +141,7 @@ def seen_share_target(like: JointLikelihood, start: dict) -> JointLikelihood:
         return like
     chi = reference_curvature(like, start)
     middle = _middle_law(law)
-    onsets = [n for n in unseen_onsets(law, chi, start) if n in prior.names and prior.box(n)[0]]
+    onsets = unseen_onsets(law, chi, start, prior)
     seen = middle.seen_ratios(chi, **{k: start[k] for k in middle.parameter_names})
     ratios = [Shear(name=n, offset=SeenRatio(law, chi, n), lower=0.0, upper=RATIO_CEILING, kind="scale")
               for n in seen if n in prior.names and not prior.box(n)[0] and prior.box(n)[1] >= 0]
