@@ -324,7 +324,8 @@ class _Ensembles(emcee.moves.Move):
     (Metropolis-within-Gibbs, exact whatever the target). ``q`` is uniform over the coordinate's box in the sampled
     coordinates, mixed half and half, where ``redraw[2]`` gives the ensemble one, with a uniform over the span its
     kept steps covered in the last round (a tenth of the span beyond either end, within the box; fixed for the
-    round, as the independence proposals). It is for a parameter the data leave prior-dominated over part of its
+    round, as the independence proposals), and judged first on the ensemble's screen where it has one (delayed
+    acceptance, as the other moves: where the coordinate is pinned, most redraws cost no call). It is for a parameter the data leave prior-dominated over part of its
     box: the micro-slip onset below every bench curvature, whose flat shoulder beside a narrow core differential
     evolution crosses in hundreds of steps (``docs/cable.md``, "The redraw").
 
@@ -399,12 +400,14 @@ class _Ensembles(emcee.moves.Move):
         return state, accepted
 
     def _redraw(self, model, state, accepted, k: int, j: int):
-        """Coordinate ``j`` (the ``k``-th redrawn) of every walker redrawn, accepted by Metropolis-Hastings."""
+        """Coordinate ``j`` (the ``k``-th redrawn) of every walker redrawn, accepted by Metropolis-Hastings (first on
+        the ensemble's screen where it has one, as the other moves)."""
         w, coords = self.n_walkers, state.coords
         lo, hi = self.box[0][j], self.box[1][j]
         q = coords.copy()
         log_u = np.empty(len(q))
-        for e, (rng, span) in enumerate(zip(self.generators, self.spans)):
+        go = np.ones(len(q), bool)
+        for e, (rng, span, sg) in enumerate(zip(self.generators, self.spans, self.screens)):
             rows = slice(e * w, (e + 1) * w)
             new = rng.uniform(lo, hi, size=w)
             if span is not None:  # half from the span of the kept steps
@@ -418,13 +421,21 @@ class _Ensembles(emcee.moves.Move):
             else:
                 log_u[rows] = np.log(rng.random(w))
             q[rows, j] = new
-        new_lp = np.asarray(model.log_prob_fn(q), dtype=float)
+            if sg is not None:  # stage 1 on the screen; stage 2's threshold carries its ratio
+                ds = sg(np.concatenate([q[rows], coords[rows]]))
+                ds = ds[:w] - ds[w:]
+                go[rows] = ds > log_u[rows]
+                log_u[rows] = np.log(rng.random(w)) + np.where(go[rows], ds, 0.0)
+        idx = np.flatnonzero(go)
+        if not idx.size:
+            return
+        new_lp = np.asarray(model.log_prob_fn(q[idx]), dtype=float)
         if np.isnan(new_lp).any():
             raise ValueError("the log-probability returned NaN")
-        self.calls += len(q)
-        ok = new_lp - state.log_prob > log_u
-        coords[ok], state.log_prob[ok] = q[ok], new_lp[ok]
-        accepted[ok] = True
+        self.calls += idx.size
+        ok = new_lp - state.log_prob[idx] > log_u[idx]
+        coords[idx[ok]], state.log_prob[idx[ok]] = q[idx[ok]], new_lp[ok]
+        accepted[idx[ok]] = True
 
 
 def _spans(kept, lower, upper) -> np.ndarray:
