@@ -377,11 +377,8 @@ class _Ensembles(emcee.moves.Move):
                                  normal, 2 * chi2, *self.box, *self.stack)
             go = np.ones((n_ens, half), bool)
             for e, sg in enumerate(self.screens):
-                if sg is not None:  # stage 1 on the screen; stage 2's threshold carries its ratio
-                    ds = sg(np.concatenate([q[e], coords[s[e]]]))
-                    ds = ds[:half] - ds[half:]
-                    go[e] = ds > log_u[e]
-                    log_u[e] = np.log(u[e, 5]) + np.where(go[e], ds, 0.0)
+                if sg is not None:
+                    go[e], log_u[e] = _screened(sg, q[e], coords[s[e]], log_u[e], u[e, 5])
             idx, q, log_u = s[go], q[go], log_u[go]
             if not len(idx):
                 continue
@@ -421,11 +418,8 @@ class _Ensembles(emcee.moves.Move):
             else:
                 log_u[rows] = np.log(rng.random(w))
             q[rows, j] = new
-            if sg is not None:  # stage 1 on the screen; stage 2's threshold carries its ratio
-                ds = sg(np.concatenate([q[rows], coords[rows]]))
-                ds = ds[:w] - ds[w:]
-                go[rows] = ds > log_u[rows]
-                log_u[rows] = np.log(rng.random(w)) + np.where(go[rows], ds, 0.0)
+            if sg is not None:
+                go[rows], log_u[rows] = _screened(sg, q[rows], coords[rows], log_u[rows], rng.random(w))
         idx = np.flatnonzero(go)
         if not idx.size:
             return
@@ -436,6 +430,16 @@ class _Ensembles(emcee.moves.Move):
         ok = new_lp - state.log_prob[idx] > log_u[idx]
         coords[idx[ok]], state.log_prob[idx[ok]] = q[idx[ok]], new_lp[ok]
         accepted[idx[ok]] = True
+
+
+def _screened(screen, proposed, current, log_u, u):
+    """Delayed acceptance's first stage: ``(go, threshold)`` — the proposals that pass on ``screen``'s ratio against
+    the Metropolis-Hastings threshold ``log_u``, and the second stage's threshold on the target's ratio, which
+    carries the screen's (``log u + ds``, with fresh uniforms ``u``)."""
+    ds = screen(np.concatenate([proposed, current]))
+    ds = ds[:len(proposed)] - ds[len(proposed):]
+    go = ds > log_u
+    return go, np.log(u) + np.where(go, ds, 0.0)
 
 
 def _spans(kept, lower, upper) -> np.ndarray:
