@@ -1,7 +1,8 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
-Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix]
-       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only emcee-no-redraw nautilus]
+Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix matrix-uniform matrix-row]
+       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only emcee-no-redraw emcee-unslanted
+       nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
 Posteriors (``--posteriors``):
@@ -17,7 +18,10 @@ Posteriors (``--posteriors``):
   1; that uniform fit, ~40 s, is not in the engine's wall time). One of its ensembles strands in a mode
   without posterior mass unless the engine starts it again (``docs/cable.md``, "Stranded ensembles");
 - ``matrix``: the misspecified ``zoned_iwan5`` row of ``benchmarks/cable_matrix.py`` (the stubby damper,
-  16 runs per test, a log-normal clamp zone no family holds) fitted with ``iwan5_zoned``.
+  16 runs per test, a log-normal clamp zone no family holds) fitted with ``iwan5_zoned``;
+- ``matrix-uniform``: the same runs under the uniform ``iwan5`` (the family the row's zoned fit starts from);
+- ``matrix-row``: ``matrix`` started as the row's diagnosis starts it (its ``iwan5`` fit's median, every zone
+  ratio 1; that uniform fit, ~14 min, is not in the engine's wall time).
 
 Engines (``--engines``), each to sbcal's convergence rule where it has one:
 
@@ -36,6 +40,8 @@ Engines (``--engines``), each to sbcal's convergence rule where it has one:
 - ``emcee-no-redraw``: ``emcee`` without the redraw of the law's unseen onsets
   (:attr:`sbcal.inference.priors.Prior.redrawn`, ``SamplerConfig.redraw_every = 0``): the cable fit before it, its
   baseline;
+- ``emcee-unslanted``: ``emcee`` with every redraw holding the other coordinates (``SamplerConfig.redraw_slant =
+  False``): the cable fit before the slanted redraw, its baseline;
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -108,7 +114,7 @@ def posterior(name: str, seed: int):
         dry = [t for t in data.tests(d.name) if not t.endswith("oiled")]
         uniform = fit_cable(d, data, dry, "iwan5", seed=0)
         return cable_likelihood(d, data, dry, "iwan5_zoned"), {}, zoned_start(uniform.median(), uniform.like.prior)
-    if name == "matrix":
+    if name.startswith("matrix"):
         from cable_matrix import record_row
         from diagnose_matrix import STUB
         with tempfile.TemporaryDirectory() as tmp:
@@ -116,7 +122,14 @@ def posterior(name: str, seed: int):
             d = load_damper(Path(tmp) / "stub.toml")
             record_row(d, "zoned_iwan5", 2029, Path(tmp) / "bench.csv")  # cable_matrix.py's seed
             data = clean_bench(load_bench(Path(tmp) / "bench.csv"))
-        return cable_likelihood(d, data, data.tests(d.name), "iwan5_zoned"), {}, None
+        tests = data.tests(d.name)
+        if name == "matrix-uniform":
+            return cable_likelihood(d, data, tests, "iwan5"), {}, None
+        start = None
+        if name == "matrix-row":  # as the row's diagnosis starts it
+            uniform = fit_cable(d, data, tests, "iwan5", seed=0)
+            start = zoned_start(uniform.median(), uniform.like.prior)
+        return cable_likelihood(d, data, tests, "iwan5_zoned"), {}, start
     raise SystemExit(f"unknown posterior {name!r}")
 
 
@@ -128,10 +141,12 @@ def share_only_target(like, start):
 
 
 def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True, share_only=False,
-              redraw=True) -> dict:
+              redraw=True, slant=True) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
     if not redraw:
         cfg = replace(cfg, redraw_every=0)
+    if not slant:
+        cfg = replace(cfg, redraw_slant=False)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:
@@ -163,7 +178,10 @@ def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, sh
             "acceptance": float(np.mean(res.acceptance)), "reason": res.reason[:200], "calls": res.calls,
             "redrawn": list(res.redrawn) if res.config.redraw_every else [],
             "calls_per_step": res.calls / res.n_steps, "restarts": [list(x) for x in res.restarts],
-            "mean": {k: float(np.mean(v)) for k, v in flat.items()}, "tau": {k: float(v) for k, v in res.tau.items()}}
+            "mean": {k: float(np.mean(v)) for k, v in flat.items()}, "tau": {k: float(v) for k, v in res.tau.items()},
+            "r_hat": {k: float(v) for k, v in res.r_hat.items()},
+            "ensemble_median": {k: np.median(v, axis=1).tolist() for k, v in res.draws.items()},
+            "ensemble_log_prob_median": np.median(res.log_prob, axis=1).tolist()}
 
 
 def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
@@ -194,9 +212,10 @@ def run_nautilus(like, seed, n_live=2000, n_eff=4000) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix"])
+    ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix",
+                                                                       "matrix-uniform", "matrix-row"])
     ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-unsheared", "emcee-share-only",
-                                                                    "emcee-no-redraw", "nautilus"])
+                                                                    "emcee-no-redraw", "emcee-unslanted", "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=4100)
@@ -215,7 +234,7 @@ def main(argv=None) -> int:
                 r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
                               screen={"emcee-screen": True, "emcee-plain": False}.get(engine), start=start,
                               shear=engine != "emcee-unsheared", share_only=engine == "emcee-share-only",
-                              redraw=engine != "emcee-no-redraw")
+                              redraw=engine != "emcee-no-redraw", slant=engine != "emcee-unslanted")
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
                       f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step"

@@ -118,8 +118,11 @@ class SamplerConfig:
     redraw_every : int
         Every this many steps, each parameter the target's prior names in ``redrawn``
         (:attr:`sbcal.inference.priors.Prior.redrawn`) is redrawn in every walker, from its box and the span of the
-        ensemble's kept steps, the others held, accepted by Metropolis-Hastings (Metropolis-within-Gibbs;
-        :class:`_Ensembles`); 0 never.
+        ensemble's kept steps, accepted by Metropolis-Hastings (Metropolis-within-Gibbs; :class:`_Ensembles`); 0 never.
+    redraw_slant : bool
+        Half the walkers of a redraw move the other coordinates with the redrawn one, by their slopes on it (the
+        Laplace approximation's in the first round, the ensemble's kept steps' after; a shear, exact), the other
+        half hold them; False: every walker holds them.
     """
 
     nwalkers: int = 24
@@ -137,6 +140,7 @@ class SamplerConfig:
     bend: int = 0
     screen: bool = False
     redraw_every: int = 2
+    redraw_slant: bool = True
 
     def __post_init__(self):
         if self.n_ensembles < POLICY["min_ensembles"]:
@@ -325,9 +329,13 @@ class _Ensembles(emcee.moves.Move):
     coordinates, mixed half and half, where ``redraw[2]`` gives the ensemble one, with a uniform over the span its
     kept steps covered in the last round (a tenth of the span beyond either end, within the box; fixed for the
     round, as the independence proposals), and judged first on the ensemble's screen where it has one (delayed
-    acceptance, as the other moves: where the coordinate is pinned, most redraws cost no call). It is for a parameter the data leave prior-dominated over part of its
-    box: the micro-slip onset below every bench curvature, whose flat shoulder beside a narrow core differential
-    evolution crosses in hundreds of steps (``docs/cable.md``, "The redraw").
+    acceptance, as the other moves: where the coordinate is pinned, most redraws cost no call). It is for a
+    parameter the data leave prior-dominated over part of its box: the micro-slip onset below every bench curvature,
+    whose flat shoulder beside a narrow core differential evolution crosses in hundreds of steps (``docs/cable.md``,
+    "The redraw"). Where ``redraw[2]`` gives an ensemble slopes (``redraw_slant``: the Laplace approximation's in
+    the first round, its kept steps' after, fixed for the round), half its walkers move their other coordinates
+    with it, ``x_i += b_i (x_j' - x_j)``: the move ``(x, x_j') -> (x', x_j)`` is its own inverse with unit Jacobian
+    (a shear), so the ratio is the same, and a redraw follows a ridge along which the others change with it.
 
     An ensemble never sees another's walkers and draws every random number from its own generator, so
     the ensembles are independent, independently seeded chains: the same as running them one by one,
@@ -404,7 +412,8 @@ class _Ensembles(emcee.moves.Move):
         q = coords.copy()
         log_u = np.empty(len(q))
         go = np.ones(len(q), bool)
-        for e, (rng, span, sg) in enumerate(zip(self.generators, self.spans, self.screens)):
+        for e, (rng, fitted, sg) in enumerate(zip(self.generators, self.spans, self.screens)):
+            span, slopes = fitted if fitted is not None else (None, None)
             rows = slice(e * w, (e + 1) * w)
             new = rng.uniform(lo, hi, size=w)
             if span is not None:  # half from the span of the kept steps
@@ -417,6 +426,9 @@ class _Ensembles(emcee.moves.Move):
                 log_u[rows] = np.log(rng.random(w)) + log_q(new) - log_q(coords[rows, j])
             else:
                 log_u[rows] = np.log(rng.random(w))
+            if slopes is not None:  # half the walkers' other coordinates follow along the ridge
+                along = rng.random(w) < 0.5
+                q[rows] += np.where(along, new - coords[rows, j], 0.0)[:, None] * slopes[k]
             q[rows, j] = new
             if sg is not None:
                 go[rows], log_u[rows] = _screened(sg, q[rows], coords[rows], log_u[rows], rng.random(w))
@@ -442,19 +454,35 @@ def _screened(screen, proposed, current, log_u, u):
     return go, np.log(u) + np.where(go, ds, 0.0)
 
 
-def _spans(kept, lower, upper) -> np.ndarray:
-    """``(k, 2)``: the span each of ``k`` coordinates covered in an ensemble's kept steps ``(steps, walkers, k)``, a
-    tenth of it beyond either end, within ``lower``-``upper`` (the redraw's; :class:`_Ensembles`)."""
-    a, b = kept.min(axis=(0, 1)), kept.max(axis=(0, 1))
+def _spans(kept, cols, lower, upper, slant: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """The redraw's proposal for one ensemble (:class:`_Ensembles`) from its kept steps ``(steps, walkers, ndim)``:
+    ``(span, slopes)``. ``span`` ``(k, 2)``: the span each redrawn coordinate ``cols`` covered, a tenth of it beyond
+    either end, within its box ``lower``-``upper`` (arrays over ``cols``). ``slopes`` ``(k, ndim)``: the least-squares
+    slope of every coordinate on each redrawn one (0 on the redrawn coordinates themselves), the ridge a slanted
+    redraw moves along; None without ``slant``."""
+    x = kept.reshape(-1, kept.shape[-1])
+    sub = x[:, cols]
+    a, b = sub.min(axis=0), sub.max(axis=0)
     pad = 0.1 * (b - a) + 1e-9 * (upper - lower)
-    return np.column_stack([np.maximum(a - pad, lower), np.minimum(b + pad, upper)])
+    span = np.column_stack([np.maximum(a - pad, lower), np.minimum(b + pad, upper)])
+    return span, _slopes(np.cov(x.T), cols) if slant else None
+
+
+def _slopes(cov, cols) -> np.ndarray:
+    """``(k, ndim)``: the slope of every coordinate on each of the ``k`` coordinates ``cols`` under the covariance
+    ``cov`` (``cov[:, j] / cov[j, j]``), 0 on ``cols`` themselves: the ridge a slanted redraw moves along."""
+    cov = np.atleast_2d(cov)
+    var = np.diag(cov)[cols]
+    slopes = cov[cols] / np.where(var > 0, var, np.inf)[:, None]
+    slopes[:, cols] = 0.0
+    return slopes
 
 
 def _advance(job):
     """Run some ensembles (side by side) ``steps`` further; module-level so a process can run it.
 
     ``job = (target, coords (G W, ndim), log_prob (G W,), generator states (G,), proposals (G,),
-    independence, steps, screens (G,), redraw_every, spans (G,))``; returns the chain, the log-probabilities, the final coords/log-probs,
+    independence, steps, screens (G,), redraw_every, the redraw's (span, slopes) (G,))``; returns the chain, the log-probabilities, the final coords/log-probs,
     the generators' states, the acceptance counts per walker and the parameter sets the target was called on.
     """
     target, coords, log_prob, gen_states, proposals, independence, steps, screens, redraw_every, spans = job
@@ -568,9 +596,9 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         first = MapProposal.ellipsoid(z0, capped_cov(prior, cov)) if full else None
         proposals = [first] * config.n_ensembles
         screens = [None] * config.n_ensembles
-        # the redraw's spans (:class:`_Ensembles`): none in the first round
+        # the redraw's proposals (:class:`_Ensembles`): the first round's slopes from the Laplace approximation
         redrawn = [names.index(nm) for nm in prior.redrawn] if config.redraw_every else []
-        spans = [None] * config.n_ensembles
+        spans = [(None, _slopes(cov, redrawn)) if redrawn and config.redraw_slant else None] * config.n_ensembles
         calls, spent, restarts = 0, 0, []  # spent: warm-up steps before the last restart
         with process_pool(len(groups)) as pool:
             while True:
@@ -613,7 +641,8 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [fit_proposal(c[burn:], config.bend) for c in per]
                 if redrawn:
-                    spans = [_spans(c[burn:, :, redrawn], prior.z_lower[redrawn], prior.z_upper[redrawn]) for c in per]
+                    spans = [_spans(c[burn:], redrawn, prior.z_lower[redrawn], prior.z_upper[redrawn], config.redraw_slant)
+                             for c in per]
                 if config.screen:
                     box = (prior.z_lower, prior.z_upper)
                     screens = [fit_surrogate(c[burn:], lp_e[burn:], box, tp)
