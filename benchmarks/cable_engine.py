@@ -1,7 +1,7 @@
 """Sampling engines on the cable posteriors that do not converge in the step cap, side by side.
 
 Usage: python benchmarks/cable_engine.py [--posteriors uniform oiled zoned dry-zoned matrix matrix-uniform matrix-row]
-       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only emcee-no-redraw emcee-unslanted
+       [--engines emcee emcee-t emcee-screen emcee-plain emcee-unsheared emcee-share-only emcee-no-redraw emcee-slanted
        nautilus]
        [--steps 1500] [--workers 2] [--seed 4100] [--json OUT]
 
@@ -40,8 +40,8 @@ Engines (``--engines``), each to sbcal's convergence rule where it has one:
 - ``emcee-no-redraw``: ``emcee`` without the redraw of the law's unseen onsets
   (:attr:`sbcal.inference.priors.Prior.redrawn`, ``SamplerConfig.redraw_every = 0``): the cable fit before it, its
   baseline;
-- ``emcee-unslanted``: ``emcee`` with every redraw holding the other coordinates (``SamplerConfig.redraw_slant =
-  False``): the cable fit before the slanted redraw, its baseline;
+- ``emcee-slanted``: ``emcee`` with half of each redraw moving the other coordinates along their slopes on the
+  redrawn one (``SamplerConfig.redraw_slant``; not the cable fits' default);
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -141,12 +141,12 @@ def share_only_target(like, start):
 
 
 def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, shear=True, share_only=False,
-              redraw=True, slant=True) -> dict:
+              redraw=True, slant=False) -> dict:
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
     if not redraw:
         cfg = replace(cfg, redraw_every=0)
-    if not slant:
-        cfg = replace(cfg, redraw_slant=False)
+    if slant:
+        cfg = replace(cfg, redraw_slant=True)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:
@@ -215,7 +215,7 @@ def main(argv=None) -> int:
     ap.add_argument("--posteriors", nargs="+", default=["zoned"], choices=["uniform", "oiled", "zoned", "dry-zoned", "matrix",
                                                                        "matrix-uniform", "matrix-row"])
     ap.add_argument("--engines", nargs="+", default=["emcee"], choices=["emcee", "emcee-t", "emcee-screen", "emcee-plain", "emcee-unsheared", "emcee-share-only",
-                                                                    "emcee-no-redraw", "emcee-unslanted", "nautilus"])
+                                                                    "emcee-no-redraw", "emcee-slanted", "nautilus"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=4100)
@@ -234,7 +234,7 @@ def main(argv=None) -> int:
                 r = run_emcee(like, args.seed, args.steps, args.workers, bend=engine != "emcee-t",
                               screen={"emcee-screen": True, "emcee-plain": False}.get(engine), start=start,
                               shear=engine != "emcee-unsheared", share_only=engine == "emcee-share-only",
-                              redraw=engine != "emcee-no-redraw", slant=engine != "emcee-unslanted")
+                              redraw=engine != "emcee-no-redraw", slant=engine == "emcee-slanted")
                 print(f"  {engine}: {r['wall_s']:.0f} s, {r['steps']} steps, converged {r['converged']}, R-hat max "
                       f"{r['r_hat_max']:.3f}, ESS min {r['ess_min']:.0f} ({r['ess_per_min']:.1f}/min), tau max "
                       f"{r['tau_max']:.0f}, acceptance {r['acceptance']:.3f}, {r['calls_per_step']:.1f} sets called a step"
