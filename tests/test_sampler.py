@@ -492,17 +492,18 @@ def test_a_restarted_ensemble_starts_around_the_best_from_its_own_generator():
 
 class Shoulder:
     """A micro-slip onset's posterior in miniature: ``x`` half in a narrow core (sd 0.1 at -10) and half on a flat
-    shoulder ``[-8, -2]``, ``y`` normal about ``x / 4`` (sd 0.5); ``x`` is named redrawn."""
+    shoulder ``[-8, -2]``, ``y`` normal about ``slope * x`` (sd ``sd``); ``x`` is named redrawn."""
 
-    def __init__(self):
-        self.prior = Prior.from_boxes("shoulder", {"x": (False, -12.0, 0.0), "y": (False, -10.0, 10.0)}).redrawing("x")
+    def __init__(self, slope: float = 0.25, sd: float = 0.5, y_box=(-10.0, 10.0)):
+        self.slope, self.sd = slope, sd
+        self.prior = Prior.from_boxes("shoulder", {"x": (False, -12.0, 0.0), "y": (False, *y_box)}).redrawing("x")
 
     def __call__(self, z):
         z = np.atleast_2d(z)
         x, y = z[:, 0], z[:, 1]
         core = np.log(0.5) - 0.5 * ((x + 10) / 0.1) ** 2 - np.log(0.1 * np.sqrt(2 * np.pi))
         flat = np.where((x >= -8) & (x <= -2), np.log(0.5 / 6), -np.inf)
-        return self.prior.log_prob(z) + np.logaddexp(core, flat) - 0.5 * ((y - x / 4) / 0.5) ** 2
+        return self.prior.log_prob(z) + np.logaddexp(core, flat) - 0.5 * ((y - self.slope * x) / self.sd) ** 2
 
 
 def test_the_redraw_crosses_between_a_core_and_a_shoulder_and_keeps_their_masses():
@@ -528,20 +529,11 @@ def test_the_redraw_crosses_between_a_core_and_a_shoulder_and_keeps_their_masses
     np.testing.assert_array_equal(twin.draws["x"], res.draws["x"])
 
 
-class SlantedShoulder:
+def slanted_shoulder():
     """:class:`Shoulder` whose ``y`` follows ``x`` closely (``y`` normal about ``x``, sd 0.15): a redraw of ``x``
     from the core to the shoulder with ``y`` held lands 13-53 sd off the ridge, as the micro-slip onset where the
-    law's other parameters must change with it (``docs/cable.md``, "The redraw")."""
-
-    def __init__(self):
-        self.prior = Prior.from_boxes("slanted", {"x": (False, -12.0, 0.0), "y": (False, -14.0, 2.0)}).redrawing("x")
-
-    def __call__(self, z):
-        z = np.atleast_2d(z)
-        x, y = z[:, 0], z[:, 1]
-        core = np.log(0.5) - 0.5 * ((x + 10) / 0.1) ** 2 - np.log(0.1 * np.sqrt(2 * np.pi))
-        flat = np.where((x >= -8) & (x <= -2), np.log(0.5 / 6), -np.inf)
-        return self.prior.log_prob(z) + np.logaddexp(core, flat) - 0.5 * ((y - x) / 0.15) ** 2
+    law's other parameters must change with it (``docs/cable.md``, "The slanted redraw")."""
+    return Shoulder(slope=1.0, sd=0.15, y_box=(-14.0, 2.0))
 
 
 def test_a_slanted_redraw_follows_the_ridge_and_keeps_the_masses():
@@ -549,8 +541,8 @@ def test_a_slanted_redraw_follows_the_ridge_and_keeps_the_masses():
     and the engine passes its own rule there (measured, seed 5: 400 steps, tau 2.9, 100 % of the draws in the core);
     with half the walkers moving ``y`` along its slope on ``x`` it crosses (1 254 steps, tau 20, 49.7 %)."""
     cfg = replace(FAST, redraw_every=1, max_steps=20000)
-    res = sample(SlantedShoulder(), seed=5, config=replace(cfg, redraw_slant=True))
-    plain = sample(SlantedShoulder(), seed=5, config=cfg)
+    res = sample(slanted_shoulder(), seed=5, config=replace(cfg, redraw_slant=True))
+    plain = sample(slanted_shoulder(), seed=5, config=cfg)
     assert res.converged
     x, y = res.flat()["x"], res.flat()["y"]
     # a binomial proportion of 0.5 over ESS draws: sd 0.5 / sqrt(ESS), 5 of them
