@@ -350,7 +350,7 @@ class _Ensembles(emcee.moves.Move):
                  screens=None, redraw=((), 0, None)):
         self.n_walkers, self.generators = n_walkers, list(generators)
         self.redraw_cols, self.redraw_every = tuple(redraw[0]), int(redraw[1])
-        self.spans = list(redraw[2]) if redraw[2] is not None else [None] * len(self.generators)
+        self.redraws = list(redraw[2]) if redraw[2] is not None else [None] * len(self.generators)
         self.steps = 0  # steps of this round: when to redraw
         proposals = list(proposals) if proposals is not None else [None] * len(self.generators)
         ndim = next((p.mean.size for p in proposals if p is not None), 0)
@@ -415,7 +415,7 @@ class _Ensembles(emcee.moves.Move):
         q = coords.copy()
         log_u = np.empty(len(q))
         go = np.ones(len(q), bool)
-        for e, (rng, fitted, sg) in enumerate(zip(self.generators, self.spans, self.screens)):
+        for e, (rng, fitted, sg) in enumerate(zip(self.generators, self.redraws, self.screens)):
             span, slopes = fitted if fitted is not None else (None, None)
             rows = slice(e * w, (e + 1) * w)
             new = rng.uniform(lo, hi, size=w)
@@ -457,7 +457,7 @@ def _screened(screen, proposed, current, log_u, u):
     return go, np.log(u) + np.where(go, ds, 0.0)
 
 
-def _spans(kept, cols, lower, upper, slant: bool) -> tuple[np.ndarray, np.ndarray | None]:
+def _redraw_proposal(kept, cols, lower, upper, slant: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """The redraw's proposal for one ensemble (:class:`_Ensembles`) from its kept steps ``(steps, walkers, ndim)``:
     ``(span, slopes)``. ``span`` ``(k, 2)``: the span each redrawn coordinate ``cols`` covered, a tenth of it beyond
     either end, within its box ``lower``-``upper`` (arrays over ``cols``). ``slopes`` ``(k, ndim)``: the least-squares
@@ -488,11 +488,11 @@ def _advance(job):
     independence, steps, screens (G,), redraw_every, the redraw's (span, slopes) (G,))``; returns the chain, the log-probabilities, the final coords/log-probs,
     the generators' states, the acceptance counts per walker and the parameter sets the target was called on.
     """
-    target, coords, log_prob, gen_states, proposals, independence, steps, screens, redraw_every, spans = job
+    target, coords, log_prob, gen_states, proposals, independence, steps, screens, redraw_every, redraws = job
     generators = [_generator(st) for st in gen_states]
     n, ndim = coords.shape
     prior = target.prior
-    redraw = ([prior.names.index(nm) for nm in prior.redrawn], redraw_every, spans)
+    redraw = ([prior.names.index(nm) for nm in prior.redrawn], redraw_every, redraws)
     move = _Ensembles(n // len(generators), generators, proposals, independence,
                       (prior.z_lower, prior.z_upper), screens, redraw)
     sampler = emcee.EnsembleSampler(n, ndim, target, vectorize=True, moves=[move])
@@ -601,7 +601,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         screens = [None] * config.n_ensembles
         # the redraw's proposals (:class:`_Ensembles`): the first round's slopes from the Laplace approximation
         redrawn = [names.index(nm) for nm in prior.redrawn] if config.redraw_every else []
-        spans = [(None, _slopes(cov, redrawn)) if redrawn and config.redraw_slant else None] * config.n_ensembles
+        redraws = [(None, _slopes(cov, redrawn)) if redrawn and config.redraw_slant else None] * config.n_ensembles
         calls, spent, restarts = 0, 0, []  # spent: warm-up steps before the last restart
         with process_pool(len(groups)) as pool:
             while True:
@@ -610,7 +610,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
                     jobs.append((target, coords[rows], log_prob[rows], [gens[e] for e in grp],
                                  [proposals[e] for e in grp], config.independence, block,
-                                 [screens[e] for e in grp], config.redraw_every, [spans[e] for e in grp]))
+                                 [screens[e] for e in grp], config.redraw_every, [redraws[e] for e in grp]))
                 pieces_c, pieces_l = [], []
                 for grp, (c, lp, cs, ls, gs, acc, k) in zip(groups, pool.map(_advance, jobs) if pool else map(_advance, jobs)):
                     rows = np.concatenate([np.arange(e * nwalkers, (e + 1) * nwalkers) for e in grp])
@@ -644,7 +644,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [fit_proposal(c[burn:], config.bend) for c in per]
                 if redrawn:
-                    spans = [_spans(c[burn:], redrawn, prior.z_lower[redrawn], prior.z_upper[redrawn], config.redraw_slant)
+                    redraws = [_redraw_proposal(c[burn:], redrawn, prior.z_lower[redrawn], prior.z_upper[redrawn], config.redraw_slant)
                              for c in per]
                 if config.screen:
                     box = (prior.z_lower, prior.z_upper)
@@ -653,7 +653,7 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 if lost:  # started again; the run so far is every ensemble's warm-up
                     fresh = _restart(target, coords, log_prob, gens, lost, best, nwalkers)
                     for e in lost:
-                        proposals[e], screens[e], spans[e] = fresh, None, None
+                        proposals[e], screens[e], redraws[e] = fresh, None, None
                     restarts.append((tuple(lost), spent + n))
                     spent += n
                     chains, lps, n = [], [], 0
