@@ -644,8 +644,8 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
                 if config.independence > 0:  # each ensemble's proposal from its own kept steps
                     proposals = [fit_proposal(c[burn:], config.bend) for c in per]
                 if redrawn:
-                    redraws = [_redraw_proposal(c[burn:], redrawn, prior.z_lower[redrawn], prior.z_upper[redrawn], config.redraw_slant)
-                             for c in per]
+                    redraws = [_redraw_proposal(c[burn:], redrawn, prior.z_lower[redrawn], prior.z_upper[redrawn],
+                                                config.redraw_slant) for c in per]
                 if config.screen:
                     box = (prior.z_lower, prior.z_upper)
                     screens = [fit_surrogate(c[burn:], lp_e[burn:], box, tp)
