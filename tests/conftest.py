@@ -23,3 +23,33 @@ def rng():
 
 
 GRID = sbcal.STANDARD_GRID_HZ
+
+
+@pytest.fixture(scope="session")
+def run_store(tmp_path_factory):
+    """damper1 at four amplitudes (EJ falling with amplitude), three sampled fast and mapped, one left
+    unsampled: the store the report and browser tests read (built once: ~40 s)."""
+    import pandas as pd
+
+    from sbcal.data.bench import curves_to_frame, write_bench
+    from sbcal.data.readers import load_bench
+    from sbcal.inference.sampler import SamplerConfig
+    from sbcal.pipeline import Settings, clean, map_damper, sample_tests
+
+    tmp = tmp_path_factory.mktemp("store")
+    d = resolve_damper("damper1")
+    rng = np.random.default_rng(77)
+    frames = []
+    for amp, ej, beta in ((0.2, 20.0, 0.25), (0.5, 12.0, 0.3), (1.0, 9.0, 0.33), (2.0, 7.0, 0.35)):
+        fuu = sbcal.dynamic_stiffness(d, GRID, EJ=ej, beta=beta)
+        noisy = fuu * np.exp(0.02 * rng.standard_normal((6, GRID.size)) + 0.01j * rng.standard_normal((6, GRID.size)))
+        frames.append(curves_to_frame("damper1", f"{amp:g}-{amp:g}", GRID, amp, noisy))
+    path = tmp / "bench.csv"
+    write_bench(pd.concat(frames), path)
+    runs = tmp / "runs"
+    settings = Settings(seed=3, sampler=SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60),
+                        workers=2)
+    data = clean(load_bench(path), [d], store=runs, settings=settings)
+    sample_tests(data, [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], store=runs, settings=settings, progress=False)
+    map_damper(runs, "damper1", settings=settings)
+    return runs

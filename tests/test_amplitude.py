@@ -21,7 +21,7 @@ def points(rng, k, n, sd, scatter=0.0):
     return [TestPoint("d", f"{a:g}", float(a), float(mi), sd, float(np.exp(mi)), 0.0, 0.0) for a, mi in zip(AMPS, m)]
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_recovers_k_and_n_from_per_test_posteriors():
     """90 % intervals of k and n contain the truth at the nominal rate over 120 data sets. Size: a calibrated
     fit fails this with probability 0.38 % a parameter (the 0.5 % lower binomial tail: fewer than 99 hits);
@@ -83,6 +83,7 @@ def _saturating_points(rng, ej_inf, c, n, sd):
     return [TestPoint("d", f"{a:g}", float(a), float(mi), sd, float(np.exp(mi)), 0.0, 0.0) for a, mi in zip(AMPS, m)]
 
 
+@pytest.mark.slow
 def test_saturating_law_is_preferred_on_data_that_saturate_and_not_on_a_power_law():
     """The preference rule on data made for it: tests whose EJ levels off at large amplitude (EJ_inf
     = 6, c = 2, n = 1.2: EJ falls from 37 to 6.9 and flattens) prefer the saturating law; an exact

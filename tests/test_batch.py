@@ -163,6 +163,7 @@ def _cable_lot(lot, tmp_path):
     return runs, units
 
 
+@pytest.mark.slow
 def test_batch_refuses_a_cable_state_a_unit_lacks_before_writing(lot, tmp_path, capsys):
     runs, _ = _cable_lot(lot, tmp_path)
     out = tmp_path / "out"
@@ -174,7 +175,7 @@ def test_batch_refuses_a_cable_state_a_unit_lacks_before_writing(lot, tmp_path, 
     assert (out / "summary.json").is_file() and not (out / "cable-dry").exists()
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_batch_pools_the_units_cable_law_into_the_designs_cable_run(lot, tmp_path, capsys):
     """Units with a cable fit: their law pooled, the next unit stored as a cable run that predict reads; a
     state one unit lacks is said and skipped."""

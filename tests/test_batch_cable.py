@@ -130,7 +130,7 @@ def test_a_units_draws_keep_a_tests_parameters_together():
     assert abs(np.corrcoef(x[:, 0], x[:, 1])[0, 1]) < 0.2    # independent tests: paired at random (300 draws: sd 0.06)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_the_design_cable_law_recovers_the_population(lot, tmp_path):
     root, runs, units, truths = lot
     cl = read_cable_lot(runs, units, "dry")

@@ -14,8 +14,6 @@ import pytest
 
 from sbcal.cli import main
 
-from .test_report import run_store  # noqa: F401  (fixture)
-
 playwright = pytest.importorskip("playwright.sync_api", reason="pip install -e '.[test]' installs Playwright")
 
 EXE = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None)
@@ -36,7 +34,7 @@ def page():
             browser.close()
 
 
-def test_report_in_headless_chromium(run_store, tmp_path, page):  # noqa: F811
+def test_report_in_headless_chromium(run_store, tmp_path, page):
     out = tmp_path / "rep"
     assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0
     alone = tmp_path / "mailed" / "report.html"  # the page without its folder: it carries its figures

@@ -16,6 +16,7 @@ PLATEAU = {"a1": 0.028022, "a2": -0.015354, "EJ_min": 3.3551, "beta_material": 0
            "chi_micro": 0.0023877, "delta_EJ": 33.783, "density_exponent": -1.40546, "macro_ratio": 0.004559}
 
 
+@pytest.mark.slow
 def test_the_cable_start_finds_the_mode_not_the_plateau(damper1):
     bench = clean_bench(load_bench(default_bench_path()), dampers=["damper1"])
     like = cable_likelihood(damper1, bench, state_tests(bench.tests("damper1"))["dry"], "iwan5")

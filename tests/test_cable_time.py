@@ -227,7 +227,8 @@ def test_micro_slip_is_the_describing_function_model(damper1, name, params, line
     assert np.all(err < 2e-3)
 
 
-@pytest.mark.parametrize("name, params", [("iwan5", IWAN5_2MM), ("bouc_wen", BW_2MM)])
+@pytest.mark.parametrize("name, params", [("iwan5", IWAN5_2MM),
+                                          pytest.param("bouc_wen", BW_2MM, marks=pytest.mark.slow)])
 def test_two_mm_near_the_resonances(damper1, name, params):
     # gross slip near the resonances: the force is distorted and the first-harmonic model is off;
     # measured, not bounded (finite, settled, converged)

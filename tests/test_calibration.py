@@ -91,7 +91,7 @@ def run_trials(n_trials, seed, n_fit=12, n_held=4, workers=2):
     return hits, np.array([b for _, b, _ in out]), [c for _, _, c in out]
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_credible_intervals_and_predictive_bands_cover_with_power():
     k, c = design()
     hits, band, converged = run_trials(k, seed=97)

@@ -33,6 +33,7 @@ def run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_design_finds_the_optimum_of_a_sweep(run):
     """One free field (the clamp-to-mass-1 arm): the search lands within the sweep's resolution of the
     sweep's best value, with an objective at least the sweep's best less its variation over one step."""
@@ -56,6 +57,7 @@ def test_design_finds_the_optimum_of_a_sweep(run):
     assert res.best["objective"] >= res.start["objective"]
 
 
+@pytest.mark.slow
 def test_cli_design_writes_a_damper_that_span_reproduces(run, tmp_path, capsys):
     space = tmp_path / "space.toml"
     space.write_text('[vary]\n"cable.length1_m" = [0.10, 0.40]\n[constraints]\narm_length_sum_m_max = 0.6\n')
@@ -161,7 +163,7 @@ def test_unlimited_lives_are_the_best_objective_not_a_nan():
     assert json_ready({"years": all_inf})["years"]["q10"] is None
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_on_the_bundled_cable_the_search_beats_the_start_and_a_random_search(tmp_path):
     """The issue's claim on real data: damper1's dry cable fitted on the bundled recordings, Drake,
     four free fields under two constraints (the box of benchmarks/design.py). The chosen design's

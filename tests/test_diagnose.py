@@ -138,8 +138,8 @@ def test_bands_join_neighbouring_off_lines():
 # --- the fast subset of the confusion matrix ----------------------------------------------------
 
 @pytest.mark.parametrize("case, verdict", [("none", "none"),
-                                           pytest.param("sensor_delay", "sensor_delay", marks=pytest.mark.slow),
-                                           pytest.param("fixture_mass", "fixture_mass", marks=pytest.mark.slow)])
+                                           pytest.param("sensor_delay", "sensor_delay", marks=pytest.mark.long),
+                                           pytest.param("fixture_mass", "fixture_mass", marks=pytest.mark.long)])
 def test_diagnose_names_the_concealed_effect(tmp_path, damper, case, verdict):
     r = run_case(damper, case, 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST)
     assert r["verdict"] == verdict, r["ranking"]
@@ -160,7 +160,7 @@ def test_diagnose_delay_value_and_words(tmp_path, damper):
     assert "ms delay" in r["parameters"]["words"]
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_fixture_resonance_is_unexplained_with_its_band(tmp_path, damper):
     r = run_case(damper, "fixture_resonance", 2027, QUICK_TESTS, tmp_path, progress=False, config=FAST)
     assert r["verdict"] == "unexplained", r["ranking"]
@@ -196,7 +196,7 @@ def test_diagnose_cli_bad_test_label(tmp_path, capsys, small_bench):
     assert rc == 2 and "9-9" in err and "\n" not in err
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_bundled_data_show_strand_slip_and_the_unified_law_fits_every_amplitude_better():
     """The README's claim: on the bundled damper1 data the verdict is strand_slip, and one slip law
     for all amplitudes beats each test's own constant-EJ fit, test by test."""

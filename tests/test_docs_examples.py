@@ -209,7 +209,7 @@ def calibrated(tmp_path_factory):
     return root
 
 
-@pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.parametrize("page", sorted(NEEDS_SAMPLES))
 def test_python_examples_on_a_calibration_run(page, calibrated, monkeypatch):
     monkeypatch.chdir(calibrated)
@@ -227,7 +227,7 @@ def not_run(argv: list[str]) -> str | None:
     return NOT_RUN.get(argv[1])
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_shell_examples_run(calibrated, monkeypatch, capsys):
     """Every documented sbcal command that takes seconds runs as written, in page order, in one folder."""
     monkeypatch.chdir(calibrated)

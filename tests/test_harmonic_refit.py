@@ -65,6 +65,7 @@ def test_the_correction_makes_the_first_harmonic_model_the_multi_harmonic_one(di
     assert np.all(none == 1)
 
 
+@pytest.mark.slow
 def test_the_fixed_point_recovers_what_the_first_harmonic_model_bends(distorted):
     like, truth, _, _ = distorted
     prior = like.prior
@@ -94,7 +95,7 @@ def test_the_fixed_point_recovers_what_the_first_harmonic_model_bends(distorted)
     assert corrected(z[None])[0] > lp_plain + 10  # the corrected model explains the runs far better
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_sbcal_cable_refits_with_the_harmonics_and_stores_the_record(distorted, tmp_path, capsys):
     """End to end: the plain fit's posterior, the refit's (PSIS-LOO decides: the bench file has no measured
     distortion), the one kept stored with its record, and printed."""

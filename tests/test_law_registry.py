@@ -150,7 +150,7 @@ def test_the_registry_refuses_a_law_that_would_break_a_command(attrs, words):
     assert LAWS == before
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_sbcal_cable_fits_the_toy_law_and_finds_its_slip_curvature(toy, tmp_path):
     """End to end: recordings of a damper whose cable is one Jenkins element (the fit's own cable model, 8
     runs of three amplitudes with 2 % noise), fitted by ``sbcal cable --law jenkins``: converged, and each

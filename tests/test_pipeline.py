@@ -48,6 +48,7 @@ def _run(bench_path, store, settings):
     return lines
 
 
+@pytest.mark.slow
 def test_changed_prior_file_redoes_what_it_feeds_and_an_unchanged_one_reuses_all(bench_path, tmp_path):
     store = tmp_path / "runs"
     settings = Settings(seed=2, sampler=FAST, diagnose=FAST_DIAG, workers=2)
@@ -97,6 +98,7 @@ def test_run_until_a_stage_stores_it_and_stops(bench_path, tmp_path, capsys):
     assert rc == 2 and "--until" in err and "\n" not in err
 
 
+@pytest.mark.slow
 def test_dask_cluster_gives_the_same_draws(bench_path, tmp_path):
     """'sample --all --scheduler ADDRESS' on a local Dask cluster stores the very draws of a local run."""
     distributed = pytest.importorskip("distributed")

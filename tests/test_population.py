@@ -32,7 +32,7 @@ def _engine_mcse(result, name):
     return sd / math.sqrt(ess), sd * math.sqrt((kurt - 1) / (4 * ess))
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_eight_schools_matches_posteriordb_reference():
     """Eight schools, non-centred, by reweighting each school's draws under a flat prior (its estimate
     N(y_j, sigma_j)): the hyper-posterior of mu ~ N(0, 5), tau ~ half-Cauchy(0, 5) must match the
@@ -69,7 +69,7 @@ def _rejection(rng, m, s, box, n):
     return np.concatenate(out)[:n]
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_reweighting_matches_a_joint_fit_of_population_and_units():
     """Four units with Gaussian likelihoods in EJ (log coordinate, log-uniform box) and beta (logit of a
     uniform box): the hyper-posterior from reweighting each unit's posterior draws (sampled under its box
@@ -166,7 +166,7 @@ def _lot(rng, offsets, scatter=0.05, width=0.005, S=500):
     return units
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_a_plain_outlier_is_named_and_the_others_are_not(seed):
     """Twelve units with EJ scatter 5 % shared by both amplitudes; unit 7 planted at -30 % (7 scatters):
     its outlier probability >= 0.95, every other unit's < 0.5; the unit ESS of tight posteriors is high."""

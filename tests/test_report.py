@@ -7,16 +7,11 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from sbcal import STANDARD_GRID_HZ as F, dynamic_stiffness
-from sbcal.data.bench import curves_to_frame, write_bench
+from sbcal.data.bench import write_bench
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
-from sbcal.pipeline import Settings, clean, map_damper, sample_tests
 from sbcal.cli import main
 from sbcal.model.damper import resolve_damper
-from sbcal.inference.sampler import SamplerConfig
-
-FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)
 
 
 class _Refs(HTMLParser):
@@ -42,30 +37,6 @@ class _Refs(HTMLParser):
         if tag in ("h2", "h3") and self._h is not None:
             self.headings.append(self._h.strip())
             self._h = None
-
-
-@pytest.fixture(scope="module")
-def run_store(tmp_path_factory):
-    """damper1 at three amplitudes (EJ falling with amplitude), sampled fast; one test left unsampled."""
-    tmp = tmp_path_factory.mktemp("store")
-    d = resolve_damper("damper1")
-    rng = np.random.default_rng(77)
-    frames = []
-    for amp, ej, beta in ((0.2, 20.0, 0.25), (0.5, 12.0, 0.3), (1.0, 9.0, 0.33), (2.0, 7.0, 0.35)):
-        fuu = dynamic_stiffness(d, F, EJ=ej, beta=beta)
-        noisy = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
-        frames.append(curves_to_frame("damper1", f"{amp:g}-{amp:g}", F, amp, noisy))
-    import pandas as pd
-
-    path = tmp / "bench.csv"
-    write_bench(pd.concat(frames), path)
-    bench = load_bench(path)
-    runs = tmp / "runs"
-    settings = Settings(seed=3, sampler=FAST, workers=2)
-    data = clean(bench, [d], store=runs, settings=settings)
-    sample_tests(data, [(d, t) for t in ("0.2-0.2", "0.5-0.5", "1-1")], store=runs, settings=settings, progress=False)
-    map_damper(runs, "damper1", settings=settings)
-    return runs
 
 
 def test_report_structure(run_store, tmp_path, capsys):

@@ -185,7 +185,7 @@ def test_map_proposal_follows_a_curved_ridge_an_ellipsoid_misses():
     assert fit_proposal(gauss.reshape(2000, 10, 4), 6).bent == 0
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_independence_moves_follow_a_curved_ridge():
     # the same engine, its proposal bent (with cable_config's half burn-in) or an ellipsoid, to the policy
     # (measured, seeds 0-3, 20 000-step cap: bent 2 966-4 025 steps, tau 19-35, var x 0.93-1.00, every run

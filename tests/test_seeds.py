@@ -104,6 +104,7 @@ def cable_bench(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_sbcal_cable_end_to_end_and_diagnose_makes_the_same_fit(cable_bench, tmp_path, capsys):
     runs = tmp_path / "runs"
     argv = ["cable", "--damper", "damper1", "--bench", str(cable_bench), "--law", LAW, "--seed", "3",
