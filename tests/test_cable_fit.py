@@ -113,3 +113,45 @@ def test_a_zoned_fit_starts_from_the_uniform_one(damper1):
     assert {k: start[k] for k in median} == median and "not_a_parameter" not in start
     assert all(start[p.name] == 1.0 for p in ZONE_PARAMETERS if p.name.endswith("_ratio"))
     assert "clamp_zone" not in start  # left to sample_cable: the middle of its box
+
+
+def test_zones_that_patch_a_mismatched_law_cannot_win(damper1):
+    """A converged zoned fit whose zone length sits on its box's end (the bundled dry cables: damper1's clamp zone
+    at 0.40, damper2's at 0.05) or differs between the cable states is not a law along the arm: the uniform
+    winner stands, the zoned family is named with the reason."""
+    from types import SimpleNamespace
+
+    from sbcal.inference.cable_fit import ZONE_BOUND_SHARE, compare_families, zone_patch
+    from sbcal.inference.priors import cable_prior
+
+    prior = cable_prior("iwan5_zoned", damper1)
+    lo, hi = (float(v[prior.names.index("clamp_zone")]) for v in (prior.lower, prior.upper))
+    assert (lo, hi) == (0.05, 0.4)  # the numbers below are placed against this box
+    rng = np.random.default_rng(3)
+
+    def zoned(state, clamp, mass=0.1, sd=0.005):
+        draws = {"clamp_zone": rng.normal(clamp, sd, 2000), "mass_zone": rng.normal(mass, sd, 2000)}
+        return CableFit(damper="d", state=state, law="iwan5_zoned", tests=(), effects=(),
+                        like=SimpleNamespace(prior=prior), result=SimpleNamespace(converged=True, draws=draws),
+                        loo=SimpleNamespace(pointwise=np.full(40, 5.0)))
+
+    edge = ZONE_BOUND_SHARE * (hi - lo)  # 0.0175: the outer 5 % of the box
+    assert zone_patch({"dry": zoned("dry", 0.2)}) is None  # the in-family benchmark's swage: 0.2 and 0.1
+    assert zone_patch({"dry": zoned("dry", lo + 1.2 * edge)}) is None
+    assert "clamp_zone on its bound in the dry state: median 0.399 in its box [0.05, 0.4]" in zone_patch({"dry": zoned("dry", 0.399)})
+    assert "on its bound" in zone_patch({"dry": zoned("dry", lo + 0.8 * edge)})
+    assert "mass_zone on its bound" in zone_patch({"dry": zoned("dry", 0.2, mass=0.06)})
+    # the same swage in both states passes; zones that move with the oil (disjoint 90 % intervals) do not
+    assert zone_patch({"dry": zoned("dry", 0.2), "oiled": zoned("oiled", 0.21, sd=0.01)}) is None
+    assert "clamp_zone differs between the states: dry" in zone_patch({"dry": zoned("dry", 0.15), "oiled": zoned("oiled", 0.3)})
+    # a uniform family and a stand-in without draws are never a patch
+    assert zone_patch({"dry": _fake_fit("iwan5", np.zeros(3), True)}) is None
+    assert zone_patch({"dry": _fake_fit("iwan5_zoned", np.zeros(3), True)}) is None
+
+    uniform = {"dry": _fake_fit("iwan5", np.full(40, 1.0), True)}
+    patched = compare_families({"iwan5": uniform, "iwan5_zoned": {"dry": zoned("dry", 0.399)}})
+    assert patched["best"] == "iwan5" and patched["converged"] and patched["settled"]
+    assert patched["patched"] == ["iwan5_zoned"] and patched["families"]["iwan5_zoned"]["delta_elpd"] == pytest.approx(160.0)
+    assert patched["families"]["iwan5"]["patch"] is None
+    held = compare_families({"iwan5": uniform, "iwan5_zoned": {"dry": zoned("dry", 0.2)}})
+    assert held["best"] == "iwan5_zoned" and held["patched"] == []

@@ -182,6 +182,9 @@ def cmd_cable(args) -> int:
         for law, v in comparison["screened"].items():
             print(f"  not sampled: {law}, whose start lies {v['log_lik_gap']:.0f} nats of log-likelihood below "
                   f"{v['below']}'s (screened beyond {v['threshold']:.0f}: its ELPD could not come near)")
+        for law in comparison.get("patched", []):
+            print(f"  not a law along the arm: {law} scored higher, but its zones patch a mismatched law "
+                  f"({comparison['families'][law]['patch']})")
         if comparison["higher_not_converged"]:
             print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
                   "(a comparison rests on converged posteriors only)")

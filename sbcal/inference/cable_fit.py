@@ -47,7 +47,11 @@ from .stats import CLEAR_SE, elpd_difference, loo
 
 
 __all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
-           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "stored_correction", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
+           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "zone_patch", "stored_correction", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
+
+ZONE_BOUND_SHARE = 0.05
+"""A zone's length whose posterior median lies within this share of its prior box's width from an end is on its
+bound (:func:`zone_patch`)."""
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
@@ -374,28 +378,71 @@ def compare_families(fits: dict, screened: dict | None = None) -> dict:
     the unconverged ``iwan5`` missed the truth by 19.6 % at 2 mm: docs/cable.md). Such families are named in
     ``outscored_by``; ``settled`` is ``converged`` and none.
 
+    A converged zoned family whose zones only patch a mismatched law (:func:`zone_patch`) cannot win either: its
+    reason is the family's ``patch``, and it is named in ``patched`` when its ELPD is above the winner's (the
+    winner's misfit then stands, and its qualifier says so).
+
     ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law); ``screened``: the
     families not sampled (:func:`sbcal.inference.cable_start.screen_families`), kept in the result. Returns
     ``{"best": law, "converged": bool, "settled": bool, "higher_not_converged": [law], "outscored_by": [law],
-    "families": {law: {"elpd", "se", "delta_elpd", "se_delta", "converged", "r_hat_max", "ess_min", "tau_max",
-    "reason"}}, "screened": {law: {"log_lik_gap", "threshold", "below"}}}`` (the convergence numbers the worst over
+    "patched": [law], "families": {law: {"elpd", "se", "delta_elpd", "se_delta", "converged", "r_hat_max", "ess_min",
+    "tau_max", "reason", "patch"}}, "screened": {law: {"log_lik_gap", "threshold", "below"}}}`` (the convergence numbers the worst over
     the family's cable states).
     """
     pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
     elpd = {law: float(p.sum()) for law, p in pointwise.items()}
     converged = {law: all(bool(f.result.converged) for f in fits[law].values()) for law in fits}
-    pool = [law for law in elpd if converged[law]] or list(elpd)
+    patch = {law: zone_patch(fits[law]) if converged[law] else None for law in fits}
+    pool = [law for law in elpd if converged[law] and not patch[law]] or list(elpd)
     best = max(pool, key=elpd.get)
     out = {}
     for law, p in pointwise.items():
         d, se = elpd_difference(pointwise[best], p)
         out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se,
-                    "converged": converged[law], **_worst_state(fits[law])}
+                    "converged": converged[law], **_worst_state(fits[law]), "patch": patch[law]}
     higher = sorted((law for law in elpd if not converged[law] and elpd[law] > elpd[best]), key=lambda k: -elpd[k])
     outscored = [law for law in higher if out[law]["delta_elpd"] > CLEAR_SE * out[law]["se_delta"]]
     return {"best": best, "converged": converged[best], "settled": converged[best] and not outscored,
-            "higher_not_converged": higher, "outscored_by": outscored, "families": out,
+            "higher_not_converged": higher, "outscored_by": outscored,
+            "patched": sorted(law for law in patch if patch[law] and elpd[law] > elpd[best]), "families": out,
             "screened": dict(screened or {})}
+
+
+def zone_patch(by_state: dict) -> str | None:
+    """Why a zoned family's fit reads as zones patching a mismatched law rather than a law that changes along
+    the arm, or None (a uniform family, a stand-in without draws, or zones that hold).
+
+    Swaged ends are geometry: their zones have a length the data place inside the prior's box, the same in every
+    cable state (oil changes the friction, not where the swage presses). A fit that spends its zones on another
+    mismatch (a law no family contains) pushes a zone's length to its box's end, or lets it differ between the
+    states: on the bundled dry cables, whose strands slip by one law along the whole arm, the converged
+    ``iwan5_zoned`` fits put damper1's clamp zone at 0.40 (the box's upper end) and damper2's at 0.05 (its
+    lower end), 700 and 263 nats above ``iwan5`` (``docs/cable.md``, "Stranded ensembles"). Two rules, on each
+    zone length (``clamp_zone``, ``mass_zone``): its posterior median within :data:`ZONE_BOUND_SHARE` of its
+    box's width from an end, in any state; its 90 % intervals disjoint between two states.
+
+    ``by_state``: ``{state: CableFit}`` of one family. Returns one line naming the zone, the numbers and the rule.
+    """
+    fits = [f for _, f in sorted(by_state.items()) if f.law.endswith(ZONED_SUFFIX)]
+    if not fits or any(getattr(f.result, "draws", None) is None or f.like is None for f in fits):
+        return None
+    for name in (p.name for p in ZONE_PARAMETERS if p.name.endswith("_zone")):
+        spans = []
+        for f in fits:
+            prior = f.like.prior
+            lo, hi = (float(v[prior.names.index(name)]) for v in (prior.lower, prior.upper))
+            q05, q50, q95 = np.quantile(np.asarray(f.result.draws[name], float), [0.05, 0.5, 0.95])
+            share = ZONE_BOUND_SHARE * (hi - lo)
+            if q50 < lo + share or q50 > hi - share:
+                return (f"{name} on its bound in the {f.state} state: median {q50:.3f} in its box "
+                        f"[{lo:g}, {hi:g}] (within {ZONE_BOUND_SHARE:.0%} of its width from an end)")
+            spans.append((f.state, q05, q95))
+        for i, (s1, a1, b1) in enumerate(spans):
+            for s2, a2, b2 in spans[i + 1:]:
+                if b1 < a2 or b2 < a1:
+                    return (f"{name} differs between the states: {s1} [{a1:.3f}, {b1:.3f}], {s2} [{a2:.3f}, {b2:.3f}] "
+                            "(90 % intervals disjoint)")
+    return None
 
 
 def law_curves(law: str, draws: dict, chi, zone: str = "middle") -> tuple[np.ndarray, np.ndarray]:
