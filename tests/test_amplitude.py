@@ -117,6 +117,7 @@ def test_map_needs_runs(tmp_path, capsys):
     assert "no finished theta1 runs" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_joint_model_recovers_known_power_law(tmp_path):
     """One emcee run over three tests whose EJ follows k A^-n exactly: k and n recovered."""
     import pandas as pd

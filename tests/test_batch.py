@@ -27,6 +27,7 @@ def _batch(runs, out, *extra):
     return main(["batch", "--runs", str(runs), "-o", str(out), "--quiet", "--seed", "1", *extra])
 
 
+@pytest.mark.slow
 def test_batch_writes_the_population_and_says_it_first(lot, tmp_path, capsys):
     out = tmp_path / "b"
     assert _batch(lot, out) == 0
@@ -51,6 +52,7 @@ def test_batch_writes_the_population_and_says_it_first(lot, tmp_path, capsys):
         assert u["ess_median"] > 30 and not u["flagged"]
 
 
+@pytest.mark.slow
 def test_batch_same_seed_same_numbers(lot, tmp_path):
     docs = []
     for name in ("a", "b"):
@@ -96,6 +98,7 @@ def test_batch_refuses_units_of_different_designs(lot, tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_an_unconverged_unit_is_left_out_and_said(lot, tmp_path, capsys):
     runs = _copy(lot, tmp_path)
     summary = runs / "damper1-u04" / "0.5-0.5" / "theta1" / "summary.json"

@@ -34,6 +34,7 @@ def page():
             browser.close()
 
 
+@pytest.mark.slow
 def test_report_in_headless_chromium(run_store, tmp_path, page):
     out = tmp_path / "rep"
     assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0

@@ -207,7 +207,7 @@ def test_plain_newmark_error_is_the_trapezoidal_frequency_error(damper1):
 
 
 @pytest.mark.parametrize("name, params, lines", [
-    ("bouc_wen", BW_MICRO, [9.0, 29.0]),
+    pytest.param("bouc_wen", BW_MICRO, [9.0, 29.0], marks=pytest.mark.slow),
     ("iwan5", IWAN5_MICRO, [9.0, 19.0, 29.0]),
     ("iwan5_zoned", dict(IWAN5_MICRO, **SWAGED), [9.0, 19.0, 29.0]),
 ])
@@ -246,6 +246,7 @@ def test_two_mm_near_the_resonances(damper1, name, params):
     assert np.all(r.distortion > 1e-3)  # gross slip: not a sinusoid
 
 
+@pytest.mark.slow
 def test_rest_and_model_starts_reach_one_steady_state(damper1):
     model = CableModel(law_for("iwan5"))
     f = np.array([8.5, 28.0])

@@ -146,6 +146,7 @@ def benches(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow
 def test_compare_bench_files_fails_a_stiffness_loss_and_writes_every_file(benches, capsys):
     d = benches
     out = d / "out"

@@ -127,6 +127,7 @@ def test_cli_design_bad_options(run, tmp_path, capsys):
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.slow
 def test_life_objective_is_the_life_q10_at_the_best_position(run):
     """With the life objective the score is the 10 % quantile of the service life [years] where the
     margin is best, and the reported life equals sbcal span's life for the same damper there."""

@@ -94,6 +94,7 @@ def test_point_fit_names_the_parameters_its_box_stops():
             assert fit.as_dict()["on_bound"] == list(fit.on_bound)
 
 
+@pytest.mark.slow
 def test_the_report_warns_where_a_fit_fails(tmp_path):
     """End to end: a test whose a1 lies outside its prior gets both warnings on its page; a test the model
     can fit gets a passing fit check and none."""

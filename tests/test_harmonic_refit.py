@@ -49,6 +49,7 @@ def distorted(damper1, tmp_path_factory):
     return like, truth, np.concatenate(gaps), path
 
 
+@pytest.mark.slow
 def test_the_correction_makes_the_first_harmonic_model_the_multi_harmonic_one(distorted, damper1):
     like, truth, gaps, _ = distorted
     assert gaps.max() > 0.05  # the first-harmonic model misses by more than the noise here

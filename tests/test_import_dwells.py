@@ -78,6 +78,7 @@ def test_harmonics_only_below_045_of_the_sampling_rate():
 
 # --- standard errors ---------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_two_standard_errors_cover_the_noise_free_line():
     """400 dwells, 4 noise levels, 4-40 Hz, 4-30 s, a force transient to settle. With K = 10-40 batches, +-2 SE
     covers ~93-95 % (Student t, K - 1 dof). Binomial sd of a coverage of 0.95 over 400 dwells: 0.011, so

@@ -99,7 +99,8 @@ def test_bouc_wen_turning_state():
 
 
 @pytest.mark.parametrize("name, params, harmonics", [
-    ("bouc_wen", dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_slip=3e-3, sharpness=2.0), 5),
+    pytest.param("bouc_wen", dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_slip=3e-3, sharpness=2.0), 5,
+                 marks=pytest.mark.slow),
     ("iwan5", dict(EJ_min=4.0, beta_material=0.03, delta_EJ=55.0, chi_micro=1e-3, chi_macro=0.02,
                    density_exponent=-0.5, macro_ratio=0.1), 5)])
 def test_harmonic_balance_on_the_compiled_operators(damper1, name, params, harmonics):

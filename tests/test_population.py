@@ -166,7 +166,8 @@ def _lot(rng, offsets, scatter=0.05, width=0.005, S=500):
     return units
 
 
-@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2])
 def test_a_plain_outlier_is_named_and_the_others_are_not(seed):
     """Twelve units with EJ scatter 5 % shared by both amplitudes; unit 7 planted at -30 % (7 scatters):
     its outlier probability >= 0.95, every other unit's < 0.5; the unit ESS of tight posteriors is high."""

@@ -102,7 +102,8 @@ def test_an_offset_at_one_amplitude_is_partial_and_becomes_the_discrepancy(dampe
 
 # --- on the virtual bench: the qualifier's proof, fast ------------------------------------------
 
-@pytest.mark.parametrize("case", ["none", "fixture_mass", "sensor_delay"])
+@pytest.mark.parametrize("case", ["none", pytest.param("fixture_mass", marks=pytest.mark.slow),
+                                  pytest.param("sensor_delay", marks=pytest.mark.slow)])
 def test_clean_cases_are_complete(tmp_path, damper, case):
     """A few seeds of the false-alarm experiment (benchmarks/diagnose_qualifier.py): data made by a
     model in the catalogue are ``complete`` on the verdict's model (the catalogue cut to the case's

@@ -39,6 +39,7 @@ class _Refs(HTMLParser):
             self._h = None
 
 
+@pytest.mark.slow
 def test_report_structure(run_store, tmp_path, capsys):
     out = tmp_path / "rep"
     assert main(["report", "--runs", str(run_store), "-o", str(out)]) == 0
@@ -63,6 +64,7 @@ def test_report_structure(run_store, tmp_path, capsys):
     assert "EJ" in page and "R-hat" in page
 
 
+@pytest.mark.slow
 def test_map_on_stored_runs(run_store, tmp_path):
     import json
 
@@ -75,6 +77,7 @@ def test_map_on_stored_runs(run_store, tmp_path):
     assert (tmp_path / "m.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_report_shows_what_the_store_says(run_store, tmp_path):
     """The report renders the stored stages and recomputes nothing: its map numbers are the ones of
     'sbcal map --json' (the stored map.json), its removed runs those of the stored cleaning stage."""
@@ -116,6 +119,7 @@ def diagnosis_doc(tmp_path_factory):
                     config=DiagnoseConfig(draws=150))
 
 
+@pytest.mark.slow
 def test_report_shows_the_diagnosis(run_store, diagnosis_doc, tmp_path, capsys):
     """A stored ``sbcal diagnose`` result gets its section: verdict, ranking, before/after, figure."""
     from sbcal.core._io import write_json
@@ -149,6 +153,7 @@ def test_report_shows_the_diagnosis(run_store, diagnosis_doc, tmp_path, capsys):
     (run_store / "damper1" / "diagnose.json").unlink()  # the other report tests see the store as before
 
 
+@pytest.mark.slow
 def test_the_page_is_the_same_whatever_the_workers(run_store, tmp_path):
     """Figures drawn in worker processes: the same page and the same figure files as drawn here."""
     pages = {}

@@ -70,6 +70,7 @@ def test_stored_run_opens_in_arviz(bench, tmp_path):
     assert abs(on_disk["parameters"]["EJ"]["median"] - 10.0) < 0.5
 
 
+@pytest.mark.slow
 def test_same_seed_same_numbers(bench, tmp_path):
     d = resolve_damper("damper1")
     a = calibrate_test(d, bench, "0.5-0.5", seed=9, out=tmp_path / "a", config=FAST, progress=False)

@@ -61,6 +61,7 @@ def _draws(store, test):
     return np.asarray(post["EJ"])
 
 
+@pytest.mark.slow
 def test_a_tests_draws_do_not_depend_on_the_other_tests(twin_bench, tmp_path):
     d = resolve_damper("damper1")
     settings = Settings(seed=4, sampler=FAST, workers=1)
