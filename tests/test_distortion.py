@@ -168,6 +168,26 @@ def test_sbcal_cable_prints_the_largest_distortion(tmp_path, monkeypatch, capsys
     assert f"by up to {100 * gap['value']:.1f} %" in line and "harmonics 1-9" in line
 
 
+
+def test_sbcal_cable_names_a_zoned_law_that_only_patches(tmp_path, monkeypatch, capsys):
+    """A zoned family above the winner whose zones patch a mismatched law (``zone_patch``) is named with its reason."""
+    from sbcal.inference import cable_fit, harmonic_refit
+
+    fresh = _fit(tmp_path)
+    why = "clamp_zone on its bound in the dry state: median 0.399 in its box [0.05, 0.4] (within 5% of its width from an end)"
+    row = {"delta_elpd": 0.0, "se_delta": 0.0, "converged": True, "patch": None}
+    comparison = {"best": LAW, "converged": True, "settled": True, "higher_not_converged": [], "outscored_by": [],
+                  "patched": ["iwan5_zoned"], "screened": {},
+                  "families": {LAW: row, "iwan5_zoned": dict(row, delta_elpd=700.0, se_delta=55.0, patch=why)}}
+    monkeypatch.setattr(cable_fit, "fit_damper_cable",
+                        lambda *a, **k: ({LAW: {"dry": fresh}, "iwan5_zoned": {"dry": fresh}}, comparison))
+    monkeypatch.setattr(harmonic_refit, "refit_harmonics", lambda fit, **k: None)
+    assert main(["cable", "--damper", "damper1", "--bench", str(tmp_path / "bench.csv"), "--runs", str(tmp_path / "runs"),
+                 "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert f"not a law along the arm: iwan5_zoned scored higher, but its zones patch a mismatched law ({why})" in out
+    assert "iwan5_zoned 700.0 +- 55.0" in out and f"(best: {LAW})" in out
+
 def test_the_report_draws_the_stored_distortion(fit, plain, tmp_path, monkeypatch, capsys):
     """The report draws each cable state's stored distortion and says its largest (it solves nothing)."""
     from sbcal.core._io import write_json
