@@ -552,6 +552,33 @@ def test_a_slanted_redraw_follows_the_ridge_and_keeps_the_masses():
     assert np.mean(plain.flat()["x"] < -9) > 0.95
 
 
+
+class FlatOnset:
+    """``x`` flat over its box (an onset no bench curvature reaches, named redrawn) and ``y`` normal, independent:
+    at any start the log-density has no curvature in ``x``, so there is no Laplace covariance to take slopes from."""
+
+    def __init__(self):
+        self.prior = Prior.from_boxes("flat", {"x": (False, -12.0, 0.0), "y": (False, -10.0, 10.0)}).redrawing("x")
+
+    def __call__(self, z):
+        z = np.atleast_2d(z)
+        return self.prior.log_prob(z) - 0.5 * z[:, 1] ** 2
+
+
+def test_a_slanted_redraw_without_a_laplace_covariance_starts_unslanted():
+    """The cross-law matrix row's uniform fit (seed 2029) stopped with an IndexError here: the first round's slopes
+    were taken from a covariance the Laplace step did not give. Now that round redraws with the others held."""
+    from sbcal.inference.start import laplace
+
+    target = FlatOnset()
+    assert laplace(target, np.array([-6.0, 0.0])) == (None, False)
+    res = sample(target, seed=2, config=replace(FAST, redraw_every=1, redraw_slant=True))
+    assert res.converged and res.redrawn == ("x",)
+    x, y = res.flat()["x"], res.flat()["y"]
+    # uniform on [-12, 0]: mean -6, sd 12 / sqrt(12); y standard normal; 5 standard errors over the ESS
+    assert abs(x.mean() + 6.0) < 5 * (12 / np.sqrt(12)) / np.sqrt(res.ess_bulk["x"])
+    assert abs(y.mean()) < 5 / np.sqrt(res.ess_bulk["y"])
+
 def test_a_redrawn_name_must_be_a_parameter_of_the_prior():
     prior = Prior.from_boxes("p", {"a": (False, 0.0, 1.0)})
     with pytest.raises(ValueError, match="redrawn parameters"):

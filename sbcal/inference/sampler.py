@@ -601,7 +601,8 @@ def sample(target, *, seed: int, config: SamplerConfig = SamplerConfig(), start=
         screens = [None] * config.n_ensembles
         # the redraw's proposals (:class:`_Ensembles`): the first round's slopes from the Laplace approximation
         redrawn = [names.index(nm) for nm in prior.redrawn] if config.redraw_every else []
-        redraws = [(None, _slopes(cov, redrawn)) if redrawn and config.redraw_slant else None] * config.n_ensembles
+        redraws = [(None, _slopes(cov, redrawn)) if redrawn and config.redraw_slant and cov is not None else None]
+        redraws *= config.n_ensembles  # no Laplace covariance (a flat direction at the start): no slopes yet
         calls, spent, restarts = 0, 0, []  # spent: warm-up steps before the last restart
         with process_pool(len(groups)) as pool:
             while True:

@@ -157,7 +157,8 @@ def laplace(target, z0) -> tuple:
     """``(cov, full)``: the covariance of the Laplace approximation at the mode ``z0`` (finite-difference
     Hessian of the log-density in one batched call, a few steps inside the box where the mode is on a
     bound) and True; where the Hessian is not negative definite, the diagonal one of each parameter's
-    own curvature and False, or ``(None, False)`` where that is not negative either."""
+    own curvature and False, or ``(None, False)`` where that is not negative either or the log-density is
+    not finite beside the mode."""
     prior = target.prior
     d = prior.ndim
     h = 1e-4 * (prior.z_upper - prior.z_lower)
@@ -169,7 +170,7 @@ def laplace(target, z0) -> tuple:
             pts += [z0 + e[i] + e[j], z0 + e[i] - e[j], z0 - e[i] + e[j], z0 - e[i] - e[j]]
     lp = target(np.array(pts))
     if not np.all(np.isfinite(lp)):
-        return None
+        return None, False
     hess = np.empty((d, d))
     k = 1
     for i in range(d):
