@@ -25,10 +25,10 @@ Posteriors (``--posteriors``):
 
 Engines (``--engines``), each to sbcal's convergence rule where it has one:
 
-- ``emcee``: sbcal's engine as a cable fit runs it (:func:`sbcal.inference.cable_fit.sample_cable`: 4
+- ``emcee``: sbcal's engine as a cable fit ran it before the slanted redraw (:func:`sbcal.inference.cable_fit.sample_cable`: 4
   ensembles of differential evolution and an independence move from a t bent along the posterior's widest
-  directions, half of each chain burnt, in the coordinates of :mod:`sbcal.inference.cable_coords`), capped at
-  ``--steps`` steps per ensemble;
+  directions, half of each chain burnt, in the coordinates of :mod:`sbcal.inference.cable_coords`, the onsets
+  redrawn with the others held), capped at ``--steps`` steps per ensemble;
 - ``emcee-t``: the same engine with the t alone and a fifth burnt (a test's fit; the cable fits' engine
   before the bend): the baseline of ``emcee``;
 - ``emcee-unsheared``: ``emcee`` on the same posterior in the coordinates of the boxes alone, from the same
@@ -41,7 +41,8 @@ Engines (``--engines``), each to sbcal's convergence rule where it has one:
   (:attr:`sbcal.inference.priors.Prior.redrawn`, ``SamplerConfig.redraw_every = 0``): the cable fit before it, its
   baseline;
 - ``emcee-slanted``: ``emcee`` with half of each redraw moving the other coordinates along their slopes on the
-  redrawn one (``SamplerConfig.redraw_slant``; not the cable fits' default);
+  redrawn one (``SamplerConfig.redraw_slant``; the cable fits' default since the bundled results were regenerated with it,
+  while ``emcee`` and the other ``emcee-*`` engines keep the others held, as the cable fit did before);
 - ``nautilus``: neural-network-boosted importance nested sampling (``pip install nautilus-sampler``; not a
   dependency of sbcal), with its effective sample size ``n_eff`` as its diagnostic and the evidence.
 
@@ -145,8 +146,7 @@ def run_emcee(like, seed, steps, workers, bend=True, screen=None, start=None, sh
     cfg = cable_config(like.prior.ndim, workers=workers, max_steps=steps)
     if not redraw:
         cfg = replace(cfg, redraw_every=0)
-    if slant:
-        cfg = replace(cfg, redraw_slant=True)
+    cfg = replace(cfg, redraw_slant=slant)
     if screen is not None:
         cfg = replace(cfg, screen=screen)
     if not bend:

@@ -189,6 +189,28 @@ def test_diagnose_cli_json_contract(tmp_path, capsys, small_bench):
     assert "verdict none" in capsys.readouterr().out
 
 
+def test_diagnose_cli_names_a_zoned_law_that_only_patches(tmp_path, capsys, small_bench, monkeypatch):
+    """``sbcal diagnose`` says, as ``sbcal cable`` does, why a zoned family that scored higher is not the law."""
+    import sbcal.diagnosis.diagnose as module
+
+    why = "clamp_zone on its bound in the dry state: median 0.399 in its box [0.05, 0.4] (within 5% of its width from an end)"
+    row = {"delta_elpd": 0.0, "se_delta": 0.0, "converged": True, "patch": None}
+    law = {"best": "iwan5", "converged": True, "settled": True, "higher_not_converged": [], "outscored_by": [],
+           "patched": ["iwan5_zoned"], "screened": {},
+           "families": {"iwan5": row, "iwan5_zoned": dict(row, delta_elpd=700.0, se_delta=55.0, patch=why)}}
+    fit = {"effect": "strand_slip", "rms_z": 2.6, "coverage_90": 0.8, "lines_off": 38, "n_lines": 600,
+           "converged": True}
+    canned = {"verdict": "strand_slip", "law": law, "remainder": {"words": "partial: 40 % of the misfit left"},
+              "bands": [], "ranking": [], "parameters": None, "before": dict(fit, effect="baseline"), "after": fit,
+              "secondary": None}
+    monkeypatch.setattr(module, "diagnose", lambda *a, **k: dict(canned))
+    assert main(["diagnose", "--damper", "damper2", "--bench", str(small_bench.source), "--runs",
+                 str(tmp_path / "runs"), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "verdict strand_slip (iwan5 law)" in out
+    assert f"not a law along the arm: iwan5_zoned scored higher, but its zones patch a mismatched law ({why})" in out
+
+
 def test_diagnose_cli_bad_test_label(tmp_path, capsys, small_bench):
     rc = main(["diagnose", "--damper", "damper2", "--bench", str(small_bench.source), "--tests", "9-9",
                "--runs", str(tmp_path), "--quiet"])

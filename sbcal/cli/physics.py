@@ -72,6 +72,9 @@ def cmd_diagnose(args) -> int:
                  if law and law["converged"] and not law["settled"] else "")
     print(f"{damper.name}: verdict {result['verdict']}" + (f" ({law['best']} law{unsettled})" if law else "")
           + f" — {headline(result['remainder'])}")
+    for name in (law or {}).get("patched", []):
+        print(f"  not a law along the arm: {name} scored higher, but its zones patch a mismatched law "
+              f"({law['families'][name]['patch']})")
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
     if len(result["bands"]) > 12:
