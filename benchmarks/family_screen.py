@@ -26,7 +26,8 @@ from sbcal.data.bench import write_bench  # noqa: E402
 from sbcal.data.clean_bench import clean_bench  # noqa: E402
 from sbcal.data.labels import state_tests  # noqa: E402
 from sbcal.data.readers import default_bench_path, load_bench  # noqa: E402
-from sbcal.inference.cable_fit import cable_likelihood, cable_seed, compare_families, compared_laws, fit_cable  # noqa: E402
+from sbcal.inference.cable_compare import compare_families  # noqa: E402
+from sbcal.inference.cable_fit import cable_likelihood, cable_seed, compared_laws, fit_cable  # noqa: E402
 from sbcal.inference.cable_start import screen  # noqa: E402
 from sbcal.model.damper import resolve_damper  # noqa: E402
 from sbcal.model.laws import fitted_laws  # noqa: E402

@@ -49,7 +49,7 @@ def _fake_fit(law, pointwise, converged):
 
 
 def test_a_family_that_did_not_converge_cannot_win():
-    from sbcal.inference.cable_fit import compare_families, zoned_candidate
+    from sbcal.inference.cable_compare import compare_families, zoned_candidate
 
     rng = np.random.default_rng(0)
     base = rng.normal(0.0, 1.0, 40)
@@ -121,7 +121,7 @@ def test_zones_that_patch_a_mismatched_law_cannot_win(damper1):
     winner stands, the zoned family is named with the reason."""
     from types import SimpleNamespace
 
-    from sbcal.inference.cable_fit import ZONE_BOUND_SHARE, compare_families, zone_patch
+    from sbcal.inference.cable_compare import ZONE_BOUND_SHARE, compare_families, zone_patch
     from sbcal.inference.priors import cable_prior
 
     prior = cable_prior("iwan5_zoned", damper1)

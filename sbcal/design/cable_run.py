@@ -122,7 +122,7 @@ class CableRun:
     def convergence_warning(self) -> str:
         """'' when the posterior converged and its law is settled, else one line saying which parameters did
         not converge, or which family that did not converge scores clearly above the stored law
-        (``comparison.outscored_by``, :func:`sbcal.inference.cable_fit.compare_families`)."""
+        (``comparison.outscored_by``, :func:`sbcal.inference.cable_compare.compare_families`)."""
         from ..inference.sampler import POLICY
 
         s = self.summary

@@ -10,8 +10,8 @@ import numpy as np
 from ..core.seeds import job_seed
 from ..core.workers import default_workers, one_blas_thread, run_jobs
 from ..data.labels import state_tests
-from ..inference.cable_fit import (CableFit, cable_config, cable_likelihood, cable_seed, compare_families,
-                                   compared_laws, sample_cable, zoned_candidate, zoned_start)
+from ..inference.cable_compare import compare_families, zoned_candidate
+from ..inference.cable_fit import CableFit, cable_config, cable_likelihood, cable_seed, compared_laws, sample_cable, zoned_start
 from ..inference.cable_start import screen, unscreened
 from ..inference.calibrate import likelihood_for
 from ..inference.checks import ALPHA, GLOBAL_ALPHA, curve_moments, predictive_check, qualifier
@@ -261,7 +261,7 @@ def late_laws(fits: dict, name: str) -> tuple:
 
 
 def zoned_law(fits: dict, name: str, config: DiagnoseConfig) -> tuple[str | None, dict | None]:
-    """The zoned family to fit next for the cable model ``name`` (:func:`sbcal.inference.cable_fit.zoned_candidate`:
+    """The zoned family to fit next for the cable model ``name`` (:func:`sbcal.inference.cable_compare.zoned_candidate`:
     the highest-ELPD family's, converged or not, when the best converged family leaves a misfit in a cable
     state by the diagnosis's own rule, or none converged), and its start per cable state
     (:func:`sbcal.inference.cable_fit.zoned_start` from that family's fits); ``(None, None)`` when none."""

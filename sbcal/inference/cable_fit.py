@@ -8,7 +8,7 @@ share its geometry (the mass offsets ``a1``, ``a2``). The forward model is the d
 amplitude per line; a sweep restarts at each test), the likelihood the noise-only multivariate t of
 every test's runs (:class:`sbcal.inference.likelihood.TestLikelihood`, no discrepancy: the law must explain the
 runs within the bench's scatter), the posterior the engine's (:func:`sbcal.inference.sampler.sample`). Families
-are compared by PSIS-LOO grouped by run (:func:`sbcal.inference.stats.elpd_difference`).
+are compared by PSIS-LOO grouped by run (:mod:`sbcal.inference.cable_compare`).
 
 Measurement-chain effects can ride on top (``effects``: ``sensor_delay``, ``fixture_mass``,
 ``base_rocking``, with the boxes of ``priors/extensions.toml``), one value per cable state: the
@@ -33,9 +33,10 @@ from ..data.labels import cable_state, state_tests
 from ..model.cable import DEFAULT_SECTIONS, CableModel
 from ..model.cable_harmonics import DEFAULT_HARMONICS, HarmonicBalance
 from ..model.damper import Damper
-from ..model.laws import fitted_laws, law_for, zoned
+from ..model.laws import fitted_laws, law_for
 from ..model.laws.zones import ZONE_PARAMETERS, ZONED_SUFFIX, ZonedLaw
 from .cable_start import cable_start, fit_streams, polish_mode, screen, screen_families, unscreened
+from .cable_compare import compare_families, zoned_candidate
 from .cable_coords import seen_share_target
 from .calibrate import likelihood_for
 from .checks import ALPHA, GLOBAL_ALPHA, curve_moments, discrepancy, materiality, predictive_check, qualifier
@@ -43,15 +44,11 @@ from .distortion import predicted_distortion
 from .likelihood import JointLikelihood
 from .priors import Prior, cable_prior, extension_prior
 from .sampler import SamplerConfig, sample
-from .stats import CLEAR_SE, elpd_difference, loo
+from .stats import loo
 
 
 __all__ = ["SECONDARY", "compared_laws", "CableForward", "CableFit", "cable_likelihood", "cable_start",
-           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "compare_families", "zone_patch", "stored_correction", "zoned_candidate", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
-
-ZONE_BOUND_SHARE = 0.05
-"""A zone's length whose posterior median lies within this share of its prior box's width from an end is on its
-bound (:func:`zone_patch`)."""
+           "cable_seed", "polish_mode", "sample_cable", "fit_cable", "fit_damper_cable", "stored_correction", "zoned_start", "law_curves", "store_cable", "read_cable", "cable_config"]
 
 SECONDARY = {"sensor_delay": ("delay_s",), "fixture_mass": ("fixture_mass_kg",), "base_rocking": ("rocking_rad_per_m",)}
 """Effects that compose with the cable model (on the measured signal, or the clamp's rocking), by
@@ -349,102 +346,6 @@ def fit_cable(damper: Damper, data, tests, law: str, *, seed: int, effects=(), w
                     like=like, loo=loo(res.log_likelihood))
 
 
-def _worst_state(by_state: dict) -> dict:
-    """A family's convergence over its cable states, the worst of each: ``r_hat_max``, ``ess_min`` (bulk or
-    tail), ``tau_max`` [steps], and the reason of the first state that did not converge (None where no result
-    says: a stand-in's)."""
-    res = [f.result for _, f in sorted(by_state.items())]
-    if not all(hasattr(r, "r_hat_max") for r in res):
-        return {"r_hat_max": None, "ess_min": None, "tau_max": None, "reason": None}
-    return {"r_hat_max": float(max(r.r_hat_max for r in res)),
-            "ess_min": float(min(min(r.ess_bulk_min, r.ess_tail_min) for r in res)),
-            "tau_max": float(max(max(r.tau.values()) for r in res)),
-            "reason": next((r.reason for r in res if not r.converged), None)}
-
-
-def compare_families(fits: dict, screened: dict | None = None) -> dict:
-    """The best family by PSIS-LOO summed over cable states, among those whose posterior converged in
-    every state, and each family's difference to it.
-
-    A family whose posterior did not converge cannot win (its ELPD rests on draws that do not
-    represent its posterior); it is listed, flagged, and named in ``higher_not_converged`` when its
-    ELPD is above the winner's. When no family converged, the highest ELPD is ``best`` with
-    ``converged`` False (a caller must not present it as a result).
-
-    A converged winner is not *settled* when a family that did not converge scores clearly above it
-    (``delta_elpd > CLEAR_SE * se_delta``, the diagnosis's rule, :data:`sbcal.inference.stats.CLEAR_SE`):
-    the data reject the winner's law for one the sampler could not finish, so its draws are not a result
-    either (on a time-domain recording of an ``iwan5`` cable, a converged ``iwan_tail`` 652 +- 52 nats below
-    the unconverged ``iwan5`` missed the truth by 19.6 % at 2 mm: docs/cable.md). Such families are named in
-    ``outscored_by``; ``settled`` is ``converged`` and none.
-
-    A converged zoned family whose zones only patch a mismatched law (:func:`zone_patch`) cannot win either: its
-    reason is the family's ``patch``, and it is named in ``patched`` when its ELPD is above the winner's (the
-    winner's misfit then stands, and its qualifier says so).
-
-    ``fits``: ``{law: {state: CableFit}}`` (the same states and runs for every law); ``screened``: the
-    families not sampled (:func:`sbcal.inference.cable_start.screen_families`), kept in the result. Returns
-    ``{"best": law, "converged": bool, "settled": bool, "higher_not_converged": [law], "outscored_by": [law],
-    "patched": [law], "families": {law: {"elpd", "se", "delta_elpd", "se_delta", "converged", "r_hat_max", "ess_min",
-    "tau_max", "reason", "patch"}}, "screened": {law: {"log_lik_gap", "threshold", "below"}}}`` (the convergence numbers the worst over
-    the family's cable states).
-    """
-    pointwise = {law: np.concatenate([fits[law][s].loo.pointwise for s in sorted(fits[law])]) for law in fits}
-    elpd = {law: float(p.sum()) for law, p in pointwise.items()}
-    converged = {law: all(bool(f.result.converged) for f in fits[law].values()) for law in fits}
-    patch = {law: zone_patch(fits[law]) if converged[law] else None for law in fits}
-    pool = [law for law in elpd if converged[law] and not patch[law]] or list(elpd)
-    best = max(pool, key=elpd.get)
-    out = {}
-    for law, p in pointwise.items():
-        d, se = elpd_difference(pointwise[best], p)
-        out[law] = {"elpd": elpd[law], "se": float(np.sqrt(p.size * np.var(p))), "delta_elpd": d, "se_delta": se,
-                    "converged": converged[law], **_worst_state(fits[law]), "patch": patch[law]}
-    higher = sorted((law for law in elpd if not converged[law] and elpd[law] > elpd[best]), key=lambda k: -elpd[k])
-    outscored = [law for law in higher if out[law]["delta_elpd"] > CLEAR_SE * out[law]["se_delta"]]
-    return {"best": best, "converged": converged[best], "settled": converged[best] and not outscored,
-            "higher_not_converged": higher, "outscored_by": outscored,
-            "patched": sorted(law for law in patch if patch[law] and elpd[law] > elpd[best]), "families": out,
-            "screened": dict(screened or {})}
-
-
-def zone_patch(by_state: dict) -> str | None:
-    """Why a zoned family's fit reads as zones patching a mismatched law rather than a law that changes along
-    the arm, or None (a uniform family, a stand-in without draws, or zones that hold).
-
-    Swaged ends are geometry: their zones have a length the data place inside the prior's box, the same in every
-    cable state (oil changes the friction, not where the swage presses). A fit that spends its zones on another
-    mismatch (a law no family contains) pushes a zone's length to its box's end, or lets it differ between the
-    states: on the bundled dry cables, whose strands slip by one law along the whole arm, the converged
-    ``iwan5_zoned`` fits put damper1's clamp zone at 0.40 (the box's upper end) and damper2's at 0.05 (its
-    lower end), 700 and 263 nats above ``iwan5`` (``docs/cable.md``, "Stranded ensembles"). Two rules, on each
-    zone length (``clamp_zone``, ``mass_zone``): its posterior median within :data:`ZONE_BOUND_SHARE` of its
-    box's width from an end, in any state; its 90 % intervals disjoint between two states.
-
-    ``by_state``: ``{state: CableFit}`` of one family. Returns one line naming the zone, the numbers and the rule.
-    """
-    fits = [f for _, f in sorted(by_state.items()) if f.law.endswith(ZONED_SUFFIX)]
-    if not fits or any(getattr(f.result, "draws", None) is None or f.like is None for f in fits):
-        return None
-    for name in (p.name for p in ZONE_PARAMETERS if p.name.endswith("_zone")):
-        spans = []
-        for f in fits:
-            prior = f.like.prior
-            lo, hi = (float(v[prior.names.index(name)]) for v in (prior.lower, prior.upper))
-            q05, q50, q95 = np.quantile(np.asarray(f.result.draws[name], float), [0.05, 0.5, 0.95])
-            share = ZONE_BOUND_SHARE * (hi - lo)
-            if q50 < lo + share or q50 > hi - share:
-                return (f"{name} on its bound in the {f.state} state: median {q50:.3f} in its box "
-                        f"[{lo:g}, {hi:g}] (within {ZONE_BOUND_SHARE:.0%} of its width from an end)")
-            spans.append((f.state, q05, q95))
-        for i, (s1, a1, b1) in enumerate(spans):
-            for s2, a2, b2 in spans[i + 1:]:
-                if b1 < a2 or b2 < a1:
-                    return (f"{name} differs between the states: {s1} [{a1:.3f}, {b1:.3f}], {s2} [{a2:.3f}, {b2:.3f}] "
-                            "(90 % intervals disjoint)")
-    return None
-
-
 def law_curves(law: str, draws: dict, chi, zone: str = "middle") -> tuple[np.ndarray, np.ndarray]:
     """The cable law's equivalent rigidity ``Re EJ*`` [N m^2] and loss factor ``Im EJ* / Re EJ*`` at
     curvature amplitudes ``chi`` [1/m], per posterior draw: two arrays (n_draws, len(chi)). A zoned
@@ -574,26 +475,6 @@ def stored_correction(directory) -> np.ndarray | None:
     if "correction_re" not in const:
         return None
     return np.asarray(const["correction_re"]) + 1j * np.asarray(const["correction_im"])
-
-
-def zoned_candidate(comparison: dict, partial: bool) -> str | None:
-    """The zoned family (:mod:`sbcal.model.laws.zones`) to fit after the uniform ones, or None.
-
-    The zoned law of the family with the highest ELPD, converged or not: a misspecified uniform law
-    need not converge where its zoned law would (a uniform fit of a cable that is stiffer at its ends
-    sits on a ridge of trade-offs that the zones remove), so the screen looks at what fits best, and the
-    comparison of converged fits (:func:`compare_families`) judges the result. Fitted where the best
-    converged family leaves a misfit (``partial``: the qualifier of :mod:`sbcal.inference.checks` in some
-    cable state) or where the winner is not settled (none converged, or one that did not scores clearly
-    above it); where a settled uniform law explains the runs within their noise, a law that changes along
-    the arm has nothing left to explain.
-    """
-    families = comparison["families"]
-    top = max(families, key=lambda law: families[law]["elpd"])
-    if top.endswith(ZONED_SUFFIX) or not (partial or not comparison["settled"]):
-        return None
-    law = zoned(top)
-    return None if law in families else law
 
 
 def zoned_start(uniform: dict, prior: Prior) -> dict:

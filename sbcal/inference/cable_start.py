@@ -218,6 +218,6 @@ def screen(jobs: dict, *, workers: int = 1, label: str | None = None) -> tuple[d
 def unscreened(screened: dict, converged: dict) -> list:
     """The screened families to sample after all: those screened below a family whose posterior did not
     converge (``converged``: ``{law: bool}`` of the sampled families). A comparison rests on converged
-    posteriors only (:func:`sbcal.inference.cable_fit.compare_families`), so a family far below one that
+    posteriors only (:func:`sbcal.inference.cable_compare.compare_families`), so a family far below one that
     cannot be used is a candidate again: sampled, it may be the best converged family."""
     return sorted(law for law, v in screened.items() if not converged.get(v["below"], True))
