@@ -72,9 +72,8 @@ def cmd_diagnose(args) -> int:
                  if law and law["converged"] and not law["settled"] else "")
     print(f"{damper.name}: verdict {result['verdict']}" + (f" ({law['best']} law{unsettled})" if law else "")
           + f" — {headline(result['remainder'])}")
-    for name in (law or {}).get("patched", []):
-        print(f"  not a law along the arm: {name} scored higher, but its zones patch a mismatched law "
-              f"({law['families'][name]['patch']})")
+    for line in _patched_lines(law or {}):
+        print(line)
     for b in result["bands"][:12]:
         print(f"  off: {b['test']} {b['quantity']} {b['f_lo']:g}-{b['f_hi']:g} Hz (|z| up to {b['max_abs_z']:.1f})")
     if len(result["bands"]) > 12:
@@ -185,9 +184,8 @@ def cmd_cable(args) -> int:
         for law, v in comparison["screened"].items():
             print(f"  not sampled: {law}, whose start lies {v['log_lik_gap']:.0f} nats of log-likelihood below "
                   f"{v['below']}'s (screened beyond {v['threshold']:.0f}: its ELPD could not come near)")
-        for law in comparison.get("patched", []):
-            print(f"  not a law along the arm: {law} scored higher, but its zones patch a mismatched law "
-                  f"({comparison['families'][law]['patch']})")
+        for line in _patched_lines(comparison):
+            print(line)
         if comparison["higher_not_converged"]:
             print(f"  not compared: {', '.join(comparison['higher_not_converged'])} scored higher but did not converge "
                   "(a comparison rests on converged posteriors only)")
@@ -196,6 +194,12 @@ def cmd_cable(args) -> int:
                   f"{CLEAR_SE:g} se) but did not converge: the data reject the stored {best} law, whose draws are not "
                   "a result (predict, span and design warn; compare refuses)")
     return 0
+
+
+def _patched_lines(comparison: dict) -> list:
+    """One line per zoned family the comparison set aside as a patch (``patched``), as both commands print it."""
+    return [f"  not a law along the arm: {name} scored higher, but its zones patch a mismatched law "
+            f"({comparison['families'][name]['patch']})" for name in comparison.get("patched", [])]
 
 
 def _unconverged_words(v: dict) -> str:
