@@ -301,8 +301,9 @@ def _diagnose_job(job: DiagnoseJob):
     from .diagnosis.diagnose import diagnose
 
     s = job.settings
-    doc = diagnose(job.damper, job.data, seed=s.seed, config=s.diagnose, progress=job.progress,
-                   prior_path=s.priors, store=job.store)
+    with one_blas_thread():
+        doc = diagnose(job.damper, job.data, seed=s.seed, config=s.diagnose, progress=job.progress,
+                       prior_path=s.priors, store=job.store)
     doc["command"] = job.command
     doc["inputs"] = job.inputs
     write_json(diagnose_path(job.store, job.damper.name), doc, indent=1)
@@ -313,8 +314,9 @@ def diagnose_dampers(data: CleanBench, dampers, *, store, settings: Settings, ex
                      reuse: bool = True, progress: bool = True) -> dict:
     """Stage 3: the diagnosis of every damper (reused where fresh) -> ``<store>/<damper>/diagnose.json``.
 
-    Locally a diagnosis runs its fits in ``settings.diagnose.workers`` processes; on a cluster each
-    damper's diagnosis is one job. Returns ``{damper name: (doc, status)}``.
+    Locally a diagnosis runs its fits in ``settings.diagnose.workers`` processes, one damper after the other
+    (side by side, four processes on two cores took as long: ``docs/results.md``, "Performance"); on a cluster
+    each damper's diagnosis is one job. Returns ``{damper name: (doc, status)}``.
     """
     out, jobs = {}, []
     for damper in dampers:
@@ -336,15 +338,24 @@ def diagnose_dampers(data: CleanBench, dampers, *, store, settings: Settings, ex
 
 
 def map_damper(store, damper: str, *, settings: Settings, include_oiled: bool = False,
-               reuse: bool = True) -> tuple[dict | None, str]:
+               reuse: bool = True, workers: int | None = None) -> tuple[dict | None, str]:
     """Stage 4: the amplitude map of one damper from its stored posteriors -> ``map.json`` + ``map.nc``.
 
-    Returns ``(doc, status)``; ``doc`` is None when the damper has no tests at 3 or more amplitudes.
+    ``workers``: processes for the map fit's ensembles (default ``settings.workers``; the draws do not depend on
+    them). Returns ``(doc, status)``; ``doc`` is None when the damper has no tests at 3 or more amplitudes.
     """
     from .inference.amplitude import map_from_store
+    from .inference.sampler import SamplerConfig
 
+    config = SamplerConfig(workers=settings.workers if workers is None else workers)
     return map_from_store(store, damper, settings.paramset, seed=settings.seed, include_oiled=include_oiled,
-                          reuse=reuse)
+                          reuse=reuse, config=config)
+
+
+def _map_job(job):
+    store, damper, settings, workers = job
+    with one_blas_thread():
+        return map_damper(store, damper, settings=settings, workers=workers)
 
 
 def calibrate_bench(path, state: str, *, runs, settings: Settings, damper=None, amplitude=None,
@@ -418,8 +429,10 @@ def run(bench, dampers, *, store, report_dir, settings: Settings, executor=None,
         say(f"{name}: diagnose: {status}; verdict {doc['verdict']} — {headline(doc['remainder'])}")
     if until == "diagnose":
         return None
-    for damper in dampers:
-        doc, status = map_damper(store, damper.name, settings=settings)
+    side = 1 if executor is not None else min(settings.workers, len(dampers))  # a map is ~10 s, much of it on one core
+    maps = run_jobs(_map_job, [(store, d.name, settings, max(1, settings.workers // side)) for d in dampers],
+                    workers=side)
+    for damper, (doc, status) in zip(dampers, maps):
         say(f"{damper.name}: map: {status}" + ("" if doc is None else f"; preferred {doc['preferred']}"
                                                 + ("" if doc["converged"] else "; NOT CONVERGED")))
     if until == "map":

@@ -17,7 +17,8 @@ from sbcal.cli import main
 from sbcal.data.bench import curves_to_frame, write_bench
 from sbcal.data.clean_bench import clean_bench
 from sbcal.data.readers import load_bench
-from sbcal.diagnosis.diagnose import DiagnoseConfig, _cable_fits, _curves, _store_cables, curves_frame, diagnose
+from sbcal.diagnosis.diagnose import (DiagnoseConfig, _cable_fits, _curves, _refit_harmonics, _store_cables, curves_frame,
+                                    diagnose)
 from sbcal.diagnosis.fits import FitJob, _posterior
 from sbcal.inference.cable_fit import cable_likelihood, read_cable
 from sbcal.inference.distortion import HARMONICS, predicted_distortion
@@ -244,3 +245,31 @@ def test_measured_distortion_is_set_beside_the_prediction_and_switches(sweep, tm
     p, m = _lines(h, "distortion", AMPLITUDES), _lines(h, "measured", AMPLITUDES)
     big = np.isfinite(m) & (p > 0.01)
     assert h["comparison"]["median_ratio"] == pytest.approx(np.median(m[big] / p[big]))
+
+
+def test_the_cable_states_are_refitted_side_by_side_with_the_numbers_of_one_process(fit, shown, monkeypatch):
+    """Each cable state's harmonic refit is a job of its own (``workers`` processes): every state gets its own
+    record back, in order, as in one process, and its predicted distortion is carried to the curves and the store
+    (the cached property filled, not solved again). The refit itself is ``test_harmonic_refit.py``'s: here one
+    that records which state it saw (the real one samples a cable posterior on this fit)."""
+    from dataclasses import replace
+
+    from sbcal.inference import harmonic_refit
+
+    monkeypatch.setattr(harmonic_refit, "refit_harmonics",
+                        lambda fit, **k: replace(fit, refit={"state": fit.state, "used": False, "workers": k["workers"]}))
+    d = resolve_damper("damper1")
+    fits = {("strand_slip", state): f for state in ("dry", "oiled") for f in shown.values()}  # a damper's two states
+    one, rec_one = _refit_harmonics(d, fits, seed=0, workers=1)
+    two, rec_two = _refit_harmonics(d, fits, seed=0, workers=2)
+    assert {s: r["state"] for s, r in rec_two.items()} == {"dry": "dry", "oiled": "oiled"}
+    assert [r["workers"] for r in rec_one.values()] == [1, 1] and [r["workers"] for r in rec_two.values()] == [1, 1]
+    def solved(h):  # the distortion without the solve's wall time
+        return {k: v for k, v in h.items() if k != "wall_s"}
+
+    expected = solved(json.loads(json.dumps(fit.harmonics)))
+    for key in fits:
+        assert solved(one[key]["harmonics"]) == solved(two[key]["harmonics"]) == expected  # not used: the fit's own
+        assert two[key]["refit"]["state"] == key[1]
+        carried = _cable_fits(d, two)[key]
+        assert carried.__dict__["harmonics"] is two[key]["harmonics"]  # filled: .harmonics does not solve again

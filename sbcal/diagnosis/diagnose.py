@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.workers import one_blas_thread, run_jobs
 from ..data.bench import rows_digest
 from ..inference.cable_fit import SECONDARY, CableFit, store_cable
 from ..inference.checks import discrepancy, materiality, predictive_check, qualifier
@@ -507,25 +508,47 @@ def curves_frame(doc: dict):
 
 def _cable_fits(damper, fits) -> dict:
     """The cable-law fits among a model's ``fits`` (those that carry a ``law``) as :class:`CableFit`, by key."""
-    return {key: CableFit(damper=damper.name, state=key[1], law=f["law"], tests=f["tests"], effects=(),
-                          result=f["result"], like=f["like"], loo=f["loo"], refit=f.get("refit"))
-            for key, f in sorted(fits.items()) if "law" in f}
+    out = {}
+    for key, f in sorted(fits.items()):
+        if "law" not in f:
+            continue
+        fit = CableFit(damper=damper.name, state=key[1], law=f["law"], tests=f["tests"], effects=(),
+                       result=f["result"], like=f["like"], loo=f["loo"], refit=f.get("refit"))
+        if "harmonics" in f:  # the predicted distortion made by the harmonic refit's job: into the cached property
+            fit.__dict__["harmonics"] = f["harmonics"]
+        out[key] = fit
+    return out
+
+
+def _refit_job(job):
+    """One cable state's harmonic refit (a module-level function of one job, for :func:`run_jobs`):
+    ``(refit or None, the predicted distortion of the fit that stands)``."""
+    from ..inference.harmonic_refit import refit_harmonics
+
+    fit, seed, workers = job
+    with one_blas_thread():
+        refit = refit_harmonics(fit, seed=seed, workers=workers)
+        used = refit is not None and refit.refit["used"]
+        return refit, (refit if used else fit).harmonics  # a refit not used is the fit: its distortion made once
 
 
 def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
     """The strand-slip verdict's cable fits refitted with the multi-harmonic solve where it is needed
     (:func:`sbcal.inference.harmonic_refit.refit_harmonics`): ``(fits, records)``, each used refit in place of
-    its fit (its draws, likelihood, PSIS-LOO and posterior curves), ``records`` by cable state."""
-    from ..inference.harmonic_refit import refit_harmonics
+    its fit (its draws, likelihood, PSIS-LOO and posterior curves), ``records`` by cable state.
 
+    The cable states are refitted side by side, ``workers`` at a time (a refit's screen is one core's work:
+    a polish, a round of the multi-harmonic solve; the draws do not depend on the processes)."""
     out, records = dict(fits), {}
-    for key, fit in _cable_fits(damper, fits).items():
-        refit = refit_harmonics(fit, seed=seed, workers=workers)
+    cables = _cable_fits(damper, fits)
+    jobs = [(fit, seed, max(1, workers // len(cables))) for fit in cables.values()]
+    for (key, fit), (refit, harmonics) in zip(cables.items(), run_jobs(_refit_job, jobs, workers=workers)):
+        out[key] = dict(fits[key], harmonics=harmonics)
         if refit is None:
             continue
         records[fit.state] = refit.refit
         if refit.refit["used"]:
-            out[key] = dict(fits[key], **posterior_record(refit.like, fit.tests, refit.result))
+            out[key] = dict(out[key], **posterior_record(refit.like, fit.tests, refit.result))
         out[key] = dict(out[key], refit=refit.refit)
     return out, records
 
