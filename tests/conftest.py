@@ -3,6 +3,7 @@ import pytest
 
 import sbcal
 from sbcal.model.damper import Damper, resolve_damper
+from tests.benches import noisy_runs
 
 
 @pytest.fixture(scope="session")
@@ -42,7 +43,7 @@ def run_store(tmp_path_factory):
     frames = []
     for amp, ej, beta in ((0.2, 20.0, 0.25), (0.5, 12.0, 0.3), (1.0, 9.0, 0.33), (2.0, 7.0, 0.35)):
         fuu = sbcal.dynamic_stiffness(d, GRID, EJ=ej, beta=beta)
-        noisy = fuu * np.exp(0.02 * rng.standard_normal((6, GRID.size)) + 0.01j * rng.standard_normal((6, GRID.size)))
+        noisy = noisy_runs(fuu, 6, rng)
         frames.append(curves_to_frame("damper1", f"{amp:g}-{amp:g}", GRID, amp, noisy))
     path = tmp / "bench.csv"
     write_bench(pd.concat(frames), path)

@@ -8,6 +8,7 @@ from sbcal import InputError
 from sbcal.inference.amplitude import TestPoint, fit_law, points_from_table
 from sbcal.cli import main
 from sbcal.inference.sampler import SamplerConfig
+from tests.benches import noisy_runs
 
 FAST = SamplerConfig(nwalkers=16, max_draws=250, de_population=30, de_generations=60, workers=1)
 
@@ -134,7 +135,7 @@ def test_joint_model_recovers_known_power_law(tmp_path):
     frames = []
     for amp, beta in ((0.2, 0.3), (0.5, 0.35), (1.5, 0.4)):
         fuu = dynamic_stiffness(d, F, EJ=k * amp**-n, beta=beta)
-        noisy = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
+        noisy = noisy_runs(fuu, 6, rng)
         frames.append(curves_to_frame("damper2", f"{amp:g}-{amp:g}", F, amp, noisy))
     path = tmp_path / "b.csv"
     write_bench(pd.concat(frames), path)

@@ -9,6 +9,7 @@ import pytest
 import sbcal
 from sbcal.data import bench, readers
 from sbcal.cli import main
+from tests.benches import noisy_runs
 
 GRID = sbcal.STANDARD_GRID_HZ
 
@@ -20,7 +21,7 @@ def bench_file(tmp_path, damper1):
     fuu = sbcal.dynamic_stiffness(damper1, GRID, EJ=9.0, beta=0.3)[0]
 
     def runs(n):
-        return fuu * np.exp(0.03 * rng.standard_normal((n, GRID.size)) + 0.02j * rng.standard_normal((n, GRID.size)))
+        return noisy_runs(fuu, n, rng, 0.03, 0.02)
 
     c11 = runs(10)
     c11[3] *= np.exp(0.25)

@@ -30,6 +30,7 @@ from sbcal.simulate.virtual_bench import BenchConfig, response
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from diagnose_matrix import run_case  # noqa: E402
+from tests.benches import noisy_runs  # noqa: E402
 
 F = STANDARD_GRID_HZ
 BASE = dict(EJ=np.array([9.0, 14.0]), beta=np.array([0.3, 0.2]), a1=np.array([0.028, 0.029]),
@@ -313,7 +314,7 @@ def test_diagnose_fits_the_runs_the_clean_stage_stored(tmp_path):
     d = resolve_damper("damper1")
     rng = np.random.default_rng(5)
     fuu = dynamic_stiffness(d, F, EJ=12.0, beta=0.3)
-    runs = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
+    runs = noisy_runs(fuu, 6, rng)
     runs[2] *= 1.6  # one run 60 % off: an outlier at the default threshold
     frames = [curves_to_frame("damper1", t, F, a, runs) for t, a in (("0.5-0.5", 0.5), ("1-1", 1.0))]
     write_bench(pd.concat(frames, ignore_index=True), tmp_path / "b.csv")

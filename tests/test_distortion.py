@@ -250,7 +250,7 @@ def test_measured_distortion_is_set_beside_the_prediction_and_switches(sweep, tm
 def test_the_cable_states_are_refitted_side_by_side_with_the_numbers_of_one_process(fit, shown, monkeypatch):
     """Each cable state's harmonic refit is a job of its own (``workers`` processes): every state gets its own
     record back, in order, as in one process, and its predicted distortion is carried to the curves and the store
-    (the cached property filled, not solved again). The refit itself is ``test_harmonic_refit.py``'s: here one
+    (given to the fit, not solved again). The refit itself is ``test_harmonic_refit.py``'s: here one
     that records which state it saw (the real one samples a cable posterior on this fit)."""
     from dataclasses import replace
 
@@ -264,6 +264,7 @@ def test_the_cable_states_are_refitted_side_by_side_with_the_numbers_of_one_proc
     two, rec_two = _refit_harmonics(d, fits, seed=0, workers=2)
     assert {s: r["state"] for s, r in rec_two.items()} == {"dry": "dry", "oiled": "oiled"}
     assert [r["workers"] for r in rec_one.values()] == [1, 1] and [r["workers"] for r in rec_two.values()] == [1, 1]
+
     def solved(h):  # the distortion without the solve's wall time
         return {k: v for k, v in h.items() if k != "wall_s"}
 
@@ -272,4 +273,4 @@ def test_the_cable_states_are_refitted_side_by_side_with_the_numbers_of_one_proc
         assert solved(one[key]["harmonics"]) == solved(two[key]["harmonics"]) == expected  # not used: the fit's own
         assert two[key]["refit"]["state"] == key[1]
         carried = _cable_fits(d, two)[key]
-        assert carried.__dict__["harmonics"] is two[key]["harmonics"]  # filled: .harmonics does not solve again
+        assert carried.distortion is two[key]["harmonics"] and carried.harmonics is carried.distortion  # not solved again

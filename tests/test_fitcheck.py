@@ -16,6 +16,7 @@ from sbcal.data.readers import load_bench
 from sbcal.inference.calibrate import test_likelihood as likelihood_of
 from sbcal.inference.fitcheck import check_curve
 from sbcal.inference.point_fit import fit_thesis_cost
+from tests.benches import noisy_runs
 
 ALPHA = 0.01
 REPS = 400
@@ -73,7 +74,7 @@ def _bench(tmp_path, a1_factor, seed=1):
     d = resolve_damper("damper1")
     rng = np.random.default_rng(seed)
     fuu = dynamic_stiffness(d, F, EJ=10.0, beta=0.3, a1=d.a1 * a1_factor)
-    noisy = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
+    noisy = noisy_runs(fuu, 6, rng)
     path = tmp_path / f"bench{a1_factor}.csv"
     write_bench(curves_to_frame("damper1", "0.5-0.5", F, 0.5, noisy), path)
     return path

@@ -19,6 +19,7 @@ from sbcal.model.damper import resolve_damper
 from sbcal.diagnosis.diagnose import DiagnoseConfig
 from sbcal.pipeline import Settings, run
 from sbcal.inference.sampler import SamplerConfig
+from tests.benches import noisy_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)
@@ -34,7 +35,7 @@ def bench_path(tmp_path_factory):
     frames = []
     for amp, ej in ((0.2, 20.0), (0.5, 12.0), (1.0, 9.0)):
         fuu = dynamic_stiffness(d, F, EJ=ej, beta=0.3)
-        noisy = fuu * np.exp(0.02 * rng.standard_normal((6, F.size)) + 0.01j * rng.standard_normal((6, F.size)))
+        noisy = noisy_runs(fuu, 6, rng)
         frames.append(curves_to_frame("damper1", f"{amp:g}-{amp:g}", F, amp, noisy))
     path = tmp_path_factory.mktemp("pipe") / "bench.csv"
     write_bench(pd.concat(frames), path)

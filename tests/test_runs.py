@@ -15,6 +15,7 @@ from sbcal.inference.calibrate import calibrate_test
 from sbcal.cli import main
 from sbcal.model.damper import resolve_damper
 from sbcal.inference.sampler import SamplerConfig
+from tests.benches import noisy_runs
 
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60)
 
@@ -25,7 +26,7 @@ def bench(tmp_path_factory):
     d = resolve_damper("damper1")
     rng = np.random.default_rng(123)
     fuu = dynamic_stiffness(d, F, EJ=10.0, beta=0.3)
-    noisy = fuu * np.exp(0.02 * rng.standard_normal((5, F.size)) + 0.01j * rng.standard_normal((5, F.size)))
+    noisy = noisy_runs(fuu, 5, rng)
     path = tmp / "bench.csv"
     write_bench(pd.concat([curves_to_frame("damper1", "0.5-0.5", F, 0.5, noisy)]), path)
     return clean_bench(load_bench(path))

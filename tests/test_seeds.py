@@ -23,6 +23,7 @@ from sbcal.pipeline import Settings, sample_tests
 from sbcal.inference.sampler import SamplerConfig
 from sbcal.core.seeds import job_seed, seed_key
 from sbcal.inference.stats import read_netcdf
+from tests.benches import noisy_runs
 
 FAST = SamplerConfig(nwalkers=16, max_draws=150, de_population=30, de_generations=60, workers=1)
 
@@ -49,7 +50,7 @@ def twin_bench(tmp_path_factory):
     d = resolve_damper("damper1")
     rng = np.random.default_rng(321)
     fuu = dynamic_stiffness(d, STANDARD_GRID_HZ, EJ=12.0, beta=0.3)
-    noisy = fuu * np.exp(0.02 * rng.standard_normal((4, fuu.size)) + 0.01j * rng.standard_normal((4, fuu.size)))
+    noisy = noisy_runs(fuu, 4, rng)
     frames = [curves_to_frame("damper1", t, STANDARD_GRID_HZ, 0.5, noisy) for t in ("0.5-0.5", "0.5-0.5-again")]
     path = tmp_path_factory.mktemp("twin") / "bench.csv"
     write_bench(pd.concat(frames, ignore_index=True), path)

@@ -512,11 +512,9 @@ def _cable_fits(damper, fits) -> dict:
     for key, f in sorted(fits.items()):
         if "law" not in f:
             continue
-        fit = CableFit(damper=damper.name, state=key[1], law=f["law"], tests=f["tests"], effects=(),
-                       result=f["result"], like=f["like"], loo=f["loo"], refit=f.get("refit"))
-        if "harmonics" in f:  # the predicted distortion made by the harmonic refit's job: into the cached property
-            fit.__dict__["harmonics"] = f["harmonics"]
-        out[key] = fit
+        out[key] = CableFit(damper=damper.name, state=key[1], law=f["law"], tests=f["tests"], effects=(),
+                            result=f["result"], like=f["like"], loo=f["loo"], refit=f.get("refit"),
+                            distortion=f.get("harmonics"))  # made by the harmonic refit's job where it ran
     return out
 
 

@@ -226,6 +226,9 @@ class CableFit:
     refit : dict, optional
         The harmonic refit's record where one was made (:func:`sbcal.inference.harmonic_refit.refit_harmonics`):
         JSON-ready, stored as ``harmonic_refit`` in the summary.
+    distortion : dict, optional
+        :attr:`harmonics` where it was already made for this posterior (by the harmonic refit's job, in
+        another process): then it is not solved again.
     """
 
     damper: str
@@ -237,6 +240,7 @@ class CableFit:
     like: object
     loo: object
     refit: dict | None = None
+    distortion: dict | None = field(default=None, repr=False, compare=False)
 
     def median(self) -> dict:
         return {n: float(np.median(v)) for n, v in self.result.draws.items()}
@@ -254,7 +258,9 @@ class CableFit:
     def harmonics(self) -> dict:
         """The base force's distortion the posterior median predicts per line, and how far the first-harmonic
         model is from the multi-harmonic solve (:func:`sbcal.inference.distortion.predicted_distortion`), made
-        once: :func:`store_cable` stores it and ``sbcal cable`` prints its largest."""
+        once (or given as ``distortion``): :func:`store_cable` stores it and ``sbcal cable`` prints its largest."""
+        if self.distortion is not None:
+            return self.distortion
         return predicted_distortion(self.like, self.median(), self.tests)
 
 
