@@ -248,22 +248,32 @@ def test_measured_distortion_is_set_beside_the_prediction_and_switches(sweep, tm
 
 
 def test_the_cable_states_are_refitted_side_by_side_with_the_numbers_of_one_process(fit, shown, monkeypatch):
-    """Each cable state's harmonic refit is a job of its own (``workers`` processes): every state gets its own
-    record back, in order, as in one process, and its predicted distortion is carried to the curves and the store
-    (given to the fit, not solved again). The refit itself is ``test_harmonic_refit.py``'s: here one
-    that records which state it saw (the real one samples a cable posterior on this fit)."""
+    """Each cable state's screen is a job of its own (``workers`` processes), and the refits past their screens
+    are sampled side by side with the ``workers`` shared among them (one refit to sample: both workers): every
+    state gets its own record back, in order, as in one process, and the predicted distortion of the fit that
+    stands is carried to the curves and the store (given to the fit, not solved again). The refit itself is
+    ``test_harmonic_refit.py``'s: here one whose oiled state passes its screen (the real one samples a cable
+    posterior on this fit)."""
     from dataclasses import replace
 
     from sbcal.inference import harmonic_refit
+    from sbcal.inference.harmonic_refit import RefitPlan
 
-    monkeypatch.setattr(harmonic_refit, "refit_harmonics",
-                        lambda fit, **k: replace(fit, refit={"state": fit.state, "used": False, "workers": k["workers"]}))
+    def plan(fit, **k):
+        if fit.state == "dry":
+            return replace(fit, refit={"state": "dry", "used": False})
+        return RefitPlan(z=np.zeros(1), c=np.ones(1, complex), lines=np.ones(1, bool), record={"state": "oiled"})
+
+    monkeypatch.setattr(harmonic_refit, "plan_refit", plan)
+    monkeypatch.setattr(harmonic_refit, "sample_refit",
+                        lambda fit, plan, **k: replace(fit, refit=dict(plan.record, used=False, workers=k["workers"])))
     d = resolve_damper("damper1")
     fits = {("strand_slip", state): f for state in ("dry", "oiled") for f in shown.values()}  # a damper's two states
     one, rec_one = _refit_harmonics(d, fits, seed=0, workers=1)
     two, rec_two = _refit_harmonics(d, fits, seed=0, workers=2)
     assert {s: r["state"] for s, r in rec_two.items()} == {"dry": "dry", "oiled": "oiled"}
-    assert [r["workers"] for r in rec_one.values()] == [1, 1] and [r["workers"] for r in rec_two.values()] == [1, 1]
+    assert rec_one["oiled"]["workers"] == 1 and rec_two["oiled"]["workers"] == 2  # the one refit sampled gets both
+    assert "workers" not in rec_two["dry"]  # screened out: not sampled
 
     def solved(h):  # the distortion without the solve's wall time
         return {k: v for k, v in h.items() if k != "wall_s"}

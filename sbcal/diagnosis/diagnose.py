@@ -518,16 +518,25 @@ def _cable_fits(damper, fits) -> dict:
     return out
 
 
-def _refit_job(job):
-    """One cable state's harmonic refit (a module-level function of one job, for :func:`run_jobs`):
-    ``(refit or None, the predicted distortion of the fit that stands)``."""
-    from ..inference.harmonic_refit import refit_harmonics
+def _plan_job(fit):
+    """One cable state's harmonic refit up to its posterior (a module-level function of one job, for
+    :func:`run_jobs`): ``(plan, the plain fit's predicted distortion)``, ``plan`` as
+    :func:`sbcal.inference.harmonic_refit.plan_refit` returns it."""
+    from ..inference.harmonic_refit import plan_refit
 
-    fit, seed, workers = job
     with one_blas_thread():
-        refit = refit_harmonics(fit, seed=seed, workers=workers)
-        used = refit is not None and refit.refit["used"]
-        return refit, (refit if used else fit).harmonics  # a refit not used is the fit: its distortion made once
+        return plan_refit(fit), fit.harmonics
+
+
+def _sample_job(job):
+    """One planned refit's posterior: ``(refit or the plain fit, with its record; the refit's predicted
+    distortion where it is used, else None)``."""
+    from ..inference.harmonic_refit import sample_refit
+
+    fit, plan, seed, workers = job
+    with one_blas_thread():
+        out = sample_refit(fit, plan, seed=seed, workers=workers)
+        return out, (out.harmonics if out.refit["used"] else None)
 
 
 def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
@@ -535,12 +544,21 @@ def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
     (:func:`sbcal.inference.harmonic_refit.refit_harmonics`): ``(fits, records)``, each used refit in place of
     its fit (its draws, likelihood, PSIS-LOO and posterior curves), ``records`` by cable state.
 
-    The cable states are refitted side by side, ``workers`` at a time (a refit's screen is one core's work:
-    a polish, a round of the multi-harmonic solve; the draws do not depend on the processes)."""
-    out, records = dict(fits), {}
+    The cable states' screens and fixed points run side by side, ``workers`` at a time (one core's work each:
+    polishes, rounds of the multi-harmonic solve); then the refits past their screens are sampled side by side,
+    the ``workers`` shared among them (the draws do not depend on the processes)."""
+    from ..inference.harmonic_refit import RefitPlan
+
     cables = _cable_fits(damper, fits)
-    jobs = [(fit, seed, max(1, workers // len(cables))) for fit in cables.values()]
-    for (key, fit), (refit, harmonics) in zip(cables.items(), run_jobs(_refit_job, jobs, workers=workers)):
+    planned = dict(zip(cables, run_jobs(_plan_job, list(cables.values()), workers=workers)))
+    to_sample = [key for key, (plan, _) in planned.items() if isinstance(plan, RefitPlan)]
+    share = max(1, workers // max(1, len(to_sample)))
+    sampled = dict(zip(to_sample, run_jobs(_sample_job, [(cables[k], planned[k][0], seed, share) for k in to_sample],
+                                           workers=workers)))
+    out, records = dict(fits), {}
+    for key, fit in cables.items():
+        refit, harmonics = sampled.get(key, planned[key])
+        harmonics = harmonics if harmonics is not None else planned[key][1]
         out[key] = dict(fits[key], harmonics=harmonics)
         if refit is None:
             continue

@@ -31,7 +31,7 @@ posterior is sampled.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,7 +42,8 @@ from .likelihood import JointLikelihood
 from .stats import elpd_difference, loo
 
 
-__all__ = ["RESOLVE", "SCREEN_NATS", "correction_at", "lines_to_correct", "harmonic_fixed_point", "refit_harmonics"]
+__all__ = ["RESOLVE", "SCREEN_NATS", "correction_at", "lines_to_correct", "harmonic_fixed_point", "RefitPlan", "plan_refit",
+           "sample_refit", "refit_harmonics"]
 
 RESOLVE = 0.25
 """The fixed point stops when the correction moves by less than this share of every corrected line's standard
@@ -154,9 +155,97 @@ def harmonic_fixed_point(like: JointLikelihood, start: dict, lines, max_rounds: 
     return z, c, changes
 
 
+@dataclass(frozen=True)
+class RefitPlan:
+    """A refit past its screen (:func:`plan_refit`), to be sampled (:func:`sample_refit`).
+
+    Attributes
+    ----------
+    z : ndarray, shape (ndim,)
+        The corrected model's mode in sampled coordinates (the engine's start).
+    c : ndarray of complex, shape (n_lines,)
+        The correction at the fixed point.
+    lines : ndarray of bool, shape (n_lines,)
+        The lines corrected.
+    record : dict
+        The refit's record so far (JSON-ready; :func:`refit_harmonics`).
+    """
+
+    z: np.ndarray
+    c: np.ndarray
+    lines: np.ndarray
+    record: dict
+
+
+def plan_refit(fit: CableFit, *, max_rounds: int = 8) -> CableFit | RefitPlan | None:
+    """The refit's work before its posterior (one core's: polishes, rounds of the multi-harmonic solve): the
+    lines, the screen and the fixed point (module docstring, 1-2).
+
+    Returns
+    -------
+    None, CableFit or RefitPlan
+        None where no line needs the solve; the plain fit with its ``refit`` record (``used`` False) where the
+        screen fails; else the plan that :func:`sample_refit` samples.
+    """
+    like = fit.like
+    lines, basis = lines_to_correct(fit)
+    if not lines.any():
+        return None
+    prior = like.prior
+    median = fit.median()
+    _, lp_plain = polish_mode(like, prior.z_of(median)[0])
+    # one round, then the screen (a correction the data do not want fails it at once), then the fixed point
+    z, c, changes = harmonic_fixed_point(like, median, lines, 1)
+    screen = float(_with(like, c)(z[None])[0]) - lp_plain
+    record = {"lines": int(lines.sum()), "basis": basis, "screen": screen}
+    if basis == "PSIS-LOO" and screen <= SCREEN_NATS:
+        return replace(fit, refit={**record, "rounds": 1, "change": changes[-1], "changes": changes,
+                                   "fixed_point": bool(changes[-1] < RESOLVE),
+                                   "largest_correction": float(np.max(np.abs(c[lines] - 1))), "used": False,
+                                   "reason": f"the corrected mode's log-posterior is {screen:+.1f} nats against the plain "
+                                             f"one's after one round (the screen asks more than +{SCREEN_NATS:g})"})
+    if changes[-1] >= RESOLVE and max_rounds > 1:
+        z, c, more = harmonic_fixed_point(like, _at(prior, z), lines, max_rounds - 1)
+        changes += more
+    record.update(rounds=len(changes), change=changes[-1], changes=changes, fixed_point=bool(changes[-1] < RESOLVE),
+                  largest_correction=float(np.max(np.abs(c[lines] - 1))))
+    return RefitPlan(z=z, c=c, lines=lines, record=record)
+
+
+def sample_refit(fit: CableFit, plan: RefitPlan, *, seed, workers: int = 2, max_steps: int | None = None,
+                 progress: str | None = None) -> CableFit:
+    """The posterior of a planned refit (module docstring, 3) and whether it replaces the plain fit: the refit
+    where used, else the plain fit, either with the whole ``refit`` record (:func:`refit_harmonics`)."""
+    like, prior = fit.like, fit.like.prior
+    z, c, lines, record = plan.z, plan.c, plan.lines, dict(plan.record)
+    corrected = _with(like, c)
+    stream = job_seed(seed, "cable", fit.damper, fit.state, fit.law, *fit.effects, "harmonics")
+    res = sample_cable(corrected, seed=stream, config=cable_config(prior.ndim, workers=workers, max_steps=max_steps),
+                       start=_at(prior, z), progress=progress)
+    out = CableFit(damper=fit.damper, state=fit.state, law=fit.law, tests=fit.tests, effects=fit.effects, result=res,
+                   like=corrected, loo=loo(res.log_likelihood))
+    d, se = elpd_difference(fit.loo, out.loo)
+    flat, sigma = res.flat(), line_standard_errors(like)
+    spread = []  # the correction at a few draws against the one the fit used
+    n = next(iter(flat.values())).size
+    for i in np.linspace(0, n - 1, _SPREAD_DRAWS).astype(int):
+        ci, solved = correction_at(like, {k: float(v[i]) for k, v in flat.items()}, lines)
+        spread.append(_change(ci, c, sigma, lines & solved))
+    spread = float(np.median(spread))
+    basis = record["basis"]
+    used = bool(res.converged) and record["fixed_point"] and (basis == "measured distortion" or d > 2 * se)
+    reason = ("posterior not converged" if not res.converged else
+              f"the correction did not settle in {record['rounds']} rounds" if not record["fixed_point"] else
+              "the recordings' distortion confirms the law's" if basis == "measured distortion" else
+              f"PSIS-LOO {d:+.1f} +- {se:.1f} nats" + ("" if used else ": not above twice its standard error"))
+    record.update(c_spread=spread, delta_elpd=d, se=se, converged=bool(res.converged), used=used, reason=reason)
+    return replace(out, refit=record) if used else replace(fit, refit=record)
+
+
 def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 8, max_steps: int | None = None,
                     progress: str | None = None) -> CableFit | None:
-    """The cable fit refitted with the multi-harmonic solve where it is needed (module docstring).
+    """The cable fit refitted with the multi-harmonic solve where it is needed (module docstring):
+    :func:`plan_refit`, then :func:`sample_refit` where the screen passes.
 
     Parameters
     ----------
@@ -180,47 +269,7 @@ def refit_harmonics(fit: CableFit, *, seed, workers: int = 2, max_rounds: int = 
         (``|c - 1|``), ``used`` (whether the refit replaces the plain fit) and ``reason``. Where the screen
         fails, the returned fit is the plain one with the record (``used`` False, no posterior sampled).
     """
-    like = fit.like
-    lines, basis = lines_to_correct(fit)
-    if not lines.any():
-        return None
-    prior = like.prior
-    median = fit.median()
-    _, lp_plain = polish_mode(like, prior.z_of(median)[0])
-    # one round, then the screen (a correction the data do not want fails it at once), then the fixed point
-    z, c, changes = harmonic_fixed_point(like, median, lines, 1)
-    screen = float(_with(like, c)(z[None])[0]) - lp_plain
-    record = {"lines": int(lines.sum()), "basis": basis, "screen": screen}
-    if basis == "PSIS-LOO" and screen <= SCREEN_NATS:
-        return replace(fit, refit={**record, "rounds": 1, "change": changes[-1], "changes": changes,
-                                   "fixed_point": bool(changes[-1] < RESOLVE),
-                                   "largest_correction": float(np.max(np.abs(c[lines] - 1))), "used": False,
-                                   "reason": f"the corrected mode's log-posterior is {screen:+.1f} nats against the plain "
-                                             f"one's after one round (the screen asks more than +{SCREEN_NATS:g})"})
-    if changes[-1] >= RESOLVE and max_rounds > 1:
-        z, c, more = harmonic_fixed_point(like, _at(prior, z), lines,
-                                          max_rounds - 1)
-        changes += more
-    corrected = _with(like, c)
-    record.update(rounds=len(changes), change=changes[-1], changes=changes, fixed_point=bool(changes[-1] < RESOLVE),
-                  largest_correction=float(np.max(np.abs(c[lines] - 1))))
-    stream = job_seed(seed, "cable", fit.damper, fit.state, fit.law, *fit.effects, "harmonics")
-    res = sample_cable(corrected, seed=stream, config=cable_config(prior.ndim, workers=workers, max_steps=max_steps),
-                       start=_at(prior, z), progress=progress)
-    out = CableFit(damper=fit.damper, state=fit.state, law=fit.law, tests=fit.tests, effects=fit.effects, result=res,
-                   like=corrected, loo=loo(res.log_likelihood))
-    d, se = elpd_difference(fit.loo, out.loo)
-    flat, sigma = res.flat(), line_standard_errors(like)
-    spread = []  # the correction at a few draws against the one the fit used
-    n = next(iter(flat.values())).size
-    for i in np.linspace(0, n - 1, _SPREAD_DRAWS).astype(int):
-        ci, solved = correction_at(like, {k: float(v[i]) for k, v in flat.items()}, lines)
-        spread.append(_change(ci, c, sigma, lines & solved))
-    spread = float(np.median(spread))
-    used = bool(res.converged) and record["fixed_point"] and (basis == "measured distortion" or d > 2 * se)
-    reason = ("posterior not converged" if not res.converged else
-              f"the correction did not settle in {len(changes)} rounds" if not record["fixed_point"] else
-              "the recordings' distortion confirms the law's" if basis == "measured distortion" else
-              f"PSIS-LOO {d:+.1f} +- {se:.1f} nats" + ("" if used else ": not above twice its standard error"))
-    record.update(c_spread=spread, delta_elpd=d, se=se, converged=bool(res.converged), used=used, reason=reason)
-    return replace(out, refit=record) if used else replace(fit, refit=record)
+    plan = plan_refit(fit, max_rounds=max_rounds)
+    if not isinstance(plan, RefitPlan):
+        return plan
+    return sample_refit(fit, plan, seed=seed, workers=workers, max_steps=max_steps, progress=progress)
