@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/cable_matrix.py [--seed 2029] [--rows bouc_wen iwan5 lognormal_iwan iwan_tail
        zoned_bouc_wen zoned_iwan5 time_iwan5 time_zoned_iwan5] [--families bouc_wen iwan5 iwan_tail] [--json OUT]
-       [--data DIR]
+       [--data DIR | --recorded DIR] [--time-runs N] [--keep DIR]
 
 On a geometry not used in development (the stubby damper of ``benchmarks/diagnose_matrix.py``), the
 virtual bench records the thesis's test plan (0.1 ... 2 mm, 16 runs per test) with its cable drawn
@@ -27,7 +27,8 @@ and ``time_zoned_iwan5`` (the zoned family of ``iwan5``, in-family zones: 0.2 of
 harmonic refit's correction where the refit was used; beside them, the first-harmonic model's own mode (polished from
 the stored median), what a fit without the harmonics gives. With 4 runs the run means alone are 1.2-2.7 % rms
 from the noise-free curves (seed 2029; the bench's noise at 4-15 Hz): ``TIME_RUNS`` 16 would put them within the
-target's reach, at ~17 min of recording.
+target's reach, at ~17 min of recording (``--time-runs 16``; record once with ``--data DIR``, then diagnose
+with ``--recorded DIR``).
 
 ``--data DIR`` only records: each row's bench CSV into DIR (``<row>.csv``) and, for the zoned rows,
 how far their noise-free curves are from the same cable without zones; no diagnosis. For each data
@@ -36,7 +37,8 @@ set otherwise:
 - ``sbcal diagnose``'s verdict (it must be ``strand_slip``), the best family by PSIS-LOO, and whether
   its joint posterior converged;
 - every fitted family's ELPD and its difference to the best family (the diagnosis's comparison), and per
-  amplitude the rms error of the verdict model's stored posterior-median curves against the bench's
+  amplitude the rms error of the verdict model's curves at its stored posterior's median set (and, printed
+  beside, of the median over the draws of each line's curve, as ``sbcal predict`` shows it) against the bench's
   noise-free curves (``BenchConfig.ideal()``: the same cable without scatter or noise), magnitude [%]
   and phase [deg].
 
@@ -109,8 +111,8 @@ def _wrap_deg(a):
     return (a + 180.0) % 360.0 - 180.0
 
 
-def bench_config(damper, row: str, zones: bool = True) -> BenchConfig:
-    """The row's bench (``zones=False``: the same cable without its zones)."""
+def bench_config(damper, row: str, zones: bool = True, time_runs: int = TIME_RUNS) -> BenchConfig:
+    """The row's bench (``zones=False``: the same cable without its zones; ``time_runs`` per test of a time row)."""
     spec = ROWS[row]
     p = dict(spec["params"], delta_EJ=spec["params"]["delta_EJ"] * damper.ej_static)
     time = bool(spec.get("time"))
@@ -118,12 +120,15 @@ def bench_config(damper, row: str, zones: bool = True) -> BenchConfig:
     # slip_tol 1e-8 on ln(chi): Newton stalls at ~3e-9 on this geometry's 4 Hz line (rounding), where
     # the default 1e-9 refuses the recording; a 1e-8 relative curvature error is far below the noise
     return BenchConfig(params={"EJ": 0.05 * damper.ej_static, "beta": 0.05}, effects={"strand_slip": slip},
-                       runs=TIME_RUNS if time else 16, slip_tol=1e-8)
+                       runs=time_runs if time else 16, slip_tol=1e-8)
 
 
-def record_row(damper, row: str, seed: int, path: Path) -> BenchConfig:
-    """Record the row's bench CSV at ``path``; its config."""
-    config = bench_config(damper, row)
+def record_row(damper, row: str, seed: int, path: Path, time_runs: int = TIME_RUNS, recorded: bool = False) -> BenchConfig:
+    """Record the row's bench CSV at ``path`` (``recorded``: it is there already, written by ``--data`` with the same
+    seed and runs); its config."""
+    config = bench_config(damper, row, time_runs=time_runs)
+    if recorded:
+        return config
     write_bench(record(damper, config, tests_of(row), rng=np.random.default_rng([seed, list(ROWS).index(row)])), path)
     return config
 
@@ -150,10 +155,12 @@ def _wrap_rad(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws()) -> dict:
-    """One row (``law`` a key of :data:`ROWS`): record, diagnose, compare the verdict's curves with the truth."""
-    path = tmp / f"{law}.csv"
-    config = record_row(damper, law, seed, path)
+def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws(), time_runs: int = TIME_RUNS,
+            recorded: Path | None = None) -> dict:
+    """One row (``law`` a key of :data:`ROWS`): record (or read ``recorded/<law>.csv``), diagnose, compare the
+    verdict's curves with the truth."""
+    path = tmp / f"{law}.csv" if recorded is None else recorded / f"{law}.csv"
+    config = record_row(damper, law, seed, path, time_runs, recorded is not None)
     bench = clean_bench(load_bench(path))
     t0 = time.perf_counter()
     verdict = diagnose(damper, bench, seed=seed, progress=False, store=tmp / law,
@@ -175,7 +182,9 @@ def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws()) -> d
     fuu = like.model(like.damper, like.freq_hz, **med)[0] * (1.0 if correction is None else correction)
     truth = np.concatenate([response(damper, lk.freq_hz, lk.amplitude_mm_pp, config.ideal().params,
                                      config.ideal().effects)[0] for lk in like.likes])
+    over_draws = median_over_draws(like, draws, fuu, correction)
     out.update(per_test=_errors(like, summary["tests"], fuu, truth), converged=bool(summary["converged"]),
+               per_test_over_draws=_errors(like, summary["tests"], over_draws, truth),
                r_hat_max=summary.get("r_hat_max"), ess_bulk_min=summary.get("ess_bulk_min"),
                wall_s=summary.get("wall_s"), harmonic_refit=summary.get("harmonic_refit"))
     if ROWS[law].get("time"):  # the first-harmonic model's own best fit (its mode, from the median) beside it
@@ -183,6 +192,20 @@ def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws()) -> d
         first = like.model(like.damper, like.freq_hz, **dict(zip(like.prior.names, like.prior.to_natural(z[None]).T)))[0]
         out["per_test_first_harmonic"] = _errors(like, summary["tests"], first, truth)
     return out
+
+
+def median_over_draws(like, draws, fuu, correction=None, n_draws: int = 400):
+    """What ``sbcal predict`` shows: per line the median over (up to ``n_draws``) posterior draws of the curve's
+    magnitude and phase (``correction`` applied), over the likelihood's lines; the phase taken relative to ``fuu``
+    (the median set's curve), so that no line wraps."""
+    names = [k for k in like.prior.names if k in draws]
+    n = np.asarray(draws[names[0]]).size
+    pick = np.linspace(0, n - 1, min(n, n_draws)).astype(int)
+    with np.errstate(all="ignore"):
+        curves = np.concatenate([like.model(like.damper, like.freq_hz, **{k: np.asarray(draws[k])[i] for k in names})
+                                 for i in np.array_split(pick, max(1, pick.size // 50))])
+        r = curves * (1.0 if correction is None else correction) / fuu
+        return fuu * np.nanmedian(np.abs(r), axis=0) * np.exp(1j * np.nanmedian(np.angle(r), axis=0))
 
 
 def _errors(like, tests, fuu, truth) -> dict:
@@ -208,15 +231,23 @@ def main(argv=None) -> int:
     ap.add_argument("--json", metavar="OUT")
     ap.add_argument("--data", metavar="DIR", help="only record each row's bench CSV into DIR (and, for a zoned row, "
                                                   "its difference from the cable without zones); no diagnosis")
+    ap.add_argument("--time-runs", type=int, default=TIME_RUNS, metavar="N",
+                    help=f"runs per test of a time row (default {TIME_RUNS})")
+    ap.add_argument("--keep", metavar="DIR", type=Path, help="keep the rows' bench CSVs and diagnosis stores in DIR")
+    ap.add_argument("--recorded", metavar="DIR", type=Path,
+                    help="diagnose the rows' bench CSVs that --data wrote into DIR (same --seed and --time-runs)")
     args = ap.parse_args(argv)
     if args.data:
         return record_only(args)
     results, ok = [], True
     with tempfile.TemporaryDirectory() as tmp:
+        if args.keep:
+            args.keep.mkdir(parents=True, exist_ok=True)
+            tmp = args.keep
         (Path(tmp) / "stub.toml").write_text(STUB)
         damper = load_damper(Path(tmp) / "stub.toml")
         for law in args.rows:
-            r = run_law(damper, law, args.seed, Path(tmp), args.families)
+            r = run_law(damper, law, args.seed, Path(tmp), args.families, args.time_runs, args.recorded)
             results.append(r)
             print(f"data {law}: verdict {r['verdict']} ({r['verdict_law']} law), secondary "
                   f"{(r['secondary'] or {}).get('effect')}; "
@@ -246,6 +277,8 @@ def main(argv=None) -> int:
             print(f"  verdict model {r['verdict_law']}: converged {r['converged']} (R-hat max {r['r_hat_max']}, ESS min "
                   f"{r['ess_bulk_min']}); rms % / deg vs noise-free: {cells}  target {mag_t:g} % / {ph_t:g} deg: "
                   + ("met" if meets else "MISSED"))
+            cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}" for t, v in r["per_test_over_draws"].items())
+            print(f"  (the median over the draws of each line's curve, as sbcal predict shows it: {cells})")
             if "per_test_first_harmonic" in r:
                 refit = r.get("harmonic_refit") or {}
                 cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}"
@@ -268,7 +301,7 @@ def record_only(args) -> int:
     results = {}
     for row in args.rows:
         t0 = time.perf_counter()
-        record_row(damper, row, args.seed, out / f"{row}.csv")
+        record_row(damper, row, args.seed, out / f"{row}.csv", args.time_runs)
         print(f"{row}: wrote {out / (row + '.csv')} ({time.perf_counter() - t0:.0f} s)")
         if ROWS[row]["zones"]:
             results[row] = zone_effect(damper, row)
