@@ -237,8 +237,16 @@ def main(argv=None) -> int:
     ap.add_argument("--recorded", metavar="DIR", type=Path,
                     help="diagnose the rows' bench CSVs that --data wrote into DIR (same --seed and --time-runs)")
     args = ap.parse_args(argv)
+    if args.time_runs < 2:
+        print(f"--time-runs {args.time_runs}: must be >= 2 (a line's scatter needs two runs)", file=sys.stderr)
+        return 2
     if args.data:
         return record_only(args)
+    missing = [r for r in args.rows if args.recorded and not (args.recorded / f"{r}.csv").is_file()]
+    if missing:
+        print(f"--recorded {args.recorded}: no {', '.join(r + '.csv' for r in missing)} (write it with --data first)",
+              file=sys.stderr)
+        return 2
     results, ok = [], True
     with tempfile.TemporaryDirectory() as tmp:
         if args.keep:
