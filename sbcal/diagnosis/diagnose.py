@@ -529,14 +529,14 @@ def _plan_job(fit):
 
 
 def _sample_job(job):
-    """One planned refit's posterior: ``(refit or the plain fit, with its record; the refit's predicted
-    distortion where it is used, else None)``."""
+    """One planned refit's posterior: ``(refit or the plain fit, with its record; the predicted distortion of the
+    one that stands)`` (the plain fit carries its own: solved only for a used refit)."""
     from ..inference.harmonic_refit import sample_refit
 
     fit, plan, seed, workers = job
     with one_blas_thread():
         out = sample_refit(fit, plan, seed=seed, workers=workers)
-        return out, (out.harmonics if out.refit["used"] else None)
+        return out, out.harmonics
 
 
 def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
@@ -553,12 +553,11 @@ def _refit_harmonics(damper, fits, *, seed, workers) -> tuple[dict, dict]:
     planned = dict(zip(cables, run_jobs(_plan_job, list(cables.values()), workers=workers)))
     to_sample = [key for key, (plan, _) in planned.items() if isinstance(plan, RefitPlan)]
     share = max(1, workers // max(1, len(to_sample)))
-    sampled = dict(zip(to_sample, run_jobs(_sample_job, [(cables[k], planned[k][0], seed, share) for k in to_sample],
-                                           workers=workers)))
+    jobs = [(replace(cables[k], distortion=planned[k][1]), planned[k][0], seed, share) for k in to_sample]
+    sampled = dict(zip(to_sample, run_jobs(_sample_job, jobs, workers=workers)))
     out, records = dict(fits), {}
     for key, fit in cables.items():
         refit, harmonics = sampled.get(key, planned[key])
-        harmonics = harmonics if harmonics is not None else planned[key][1]
         out[key] = dict(fits[key], harmonics=harmonics)
         if refit is None:
             continue
