@@ -123,12 +123,9 @@ def bench_config(damper, row: str, zones: bool = True, time_runs: int = TIME_RUN
                        runs=time_runs if time else 16, slip_tol=1e-8)
 
 
-def record_row(damper, row: str, seed: int, path: Path, time_runs: int = TIME_RUNS, recorded: bool = False) -> BenchConfig:
-    """Record the row's bench CSV at ``path`` (``recorded``: it is there already, written by ``--data`` with the same
-    seed and runs); its config."""
+def record_row(damper, row: str, seed: int, path: Path, time_runs: int = TIME_RUNS) -> BenchConfig:
+    """Record the row's bench CSV at ``path``; its config."""
     config = bench_config(damper, row, time_runs=time_runs)
-    if recorded:
-        return config
     write_bench(record(damper, config, tests_of(row), rng=np.random.default_rng([seed, list(ROWS).index(row)])), path)
     return config
 
@@ -159,8 +156,12 @@ def run_law(damper, law: str, seed: int, tmp: Path, families=fitted_laws(), time
             recorded: Path | None = None) -> dict:
     """One row (``law`` a key of :data:`ROWS`): record (or read ``recorded/<law>.csv``), diagnose, compare the
     verdict's curves with the truth."""
-    path = tmp / f"{law}.csv" if recorded is None else recorded / f"{law}.csv"
-    config = record_row(damper, law, seed, path, time_runs, recorded is not None)
+    if recorded is None:
+        path = tmp / f"{law}.csv"
+        config = record_row(damper, law, seed, path, time_runs)
+    else:  # written by --data with the same seed and runs
+        path = recorded / f"{law}.csv"
+        config = bench_config(damper, law, time_runs=time_runs)
     bench = clean_bench(load_bench(path))
     t0 = time.perf_counter()
     verdict = diagnose(damper, bench, seed=seed, progress=False, store=tmp / law,
@@ -206,6 +207,11 @@ def median_over_draws(like, draws, fuu, correction=None, n_draws: int = 400):
                                  for i in np.array_split(pick, max(1, pick.size // 50))])
         r = curves * (1.0 if correction is None else correction) / fuu
         return fuu * np.nanmedian(np.abs(r), axis=0) * np.exp(1j * np.nanmedian(np.angle(r), axis=0))
+
+
+def _cells(per_test: dict) -> str:
+    """A row's per-test errors in one line: ``test magnitude%/phase-deg ...``."""
+    return " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}" for t, v in per_test.items())
 
 
 def _errors(like, tests, fuu, truth) -> dict:
@@ -281,16 +287,15 @@ def main(argv=None) -> int:
                 print(f"  zoned row: verdict law {r['verdict_law']} is not zoned: MISSED")
                 ok = False
             meets = all(v["magnitude_pct"] <= mag_t and v["phase_deg"] <= ph_t for v in r["per_test"].values())
-            cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}" for t, v in r["per_test"].items())
+            cells = _cells(r["per_test"])
             print(f"  verdict model {r['verdict_law']}: converged {r['converged']} (R-hat max {r['r_hat_max']}, ESS min "
                   f"{r['ess_bulk_min']}); rms % / deg vs noise-free: {cells}  target {mag_t:g} % / {ph_t:g} deg: "
                   + ("met" if meets else "MISSED"))
-            cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}" for t, v in r["per_test_over_draws"].items())
+            cells = _cells(r["per_test_over_draws"])
             print(f"  (the median over the draws of each line's curve, as sbcal predict shows it: {cells})")
             if "per_test_first_harmonic" in r:
                 refit = r.get("harmonic_refit") or {}
-                cells = " ".join(f"{t} {v['magnitude_pct']:.2f}/{v['phase_deg']:.2f}"
-                                 for t, v in r["per_test_first_harmonic"].items())
+                cells = _cells(r["per_test_first_harmonic"])
                 print(f"  harmonic refit: {'used' if refit.get('used') else 'not used'} ({refit.get('reason', 'not made')}); "
                       f"the first-harmonic model's mode: {cells}")
             ok &= meets and r["converged"]
