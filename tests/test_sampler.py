@@ -451,6 +451,21 @@ def test_a_nan_from_the_target_stops_the_run_with_the_reason():
         sample(Nan(), seed=0, config=FAST)
 
 
+def test_a_coordinate_one_walker_kept_constant_is_not_converged_and_warns_nothing():
+    # a walker moved only by redraws of other coordinates keeps one coordinate constant over the kept run: that
+    # coordinate's tau is infinite (another round), the others' finite, and numpy's 0/0 stays off stderr
+    import warnings
+
+    from sbcal.inference.sampler import _tau
+
+    chain = 0.1 * np.random.default_rng(0).standard_normal((400, 8, 3)).cumsum(axis=0)
+    chain[:, 2, 1] = 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tau, still = _tau(chain)
+    assert np.isinf(tau[1]) and np.isfinite(tau[[0, 2]]).all() and still == 0
+
+
 def test_an_ensemble_far_below_the_best_is_stranded_and_chance_is_not():
     from sbcal.inference.sampler import stranded
 

@@ -508,7 +508,10 @@ def _tau(chain) -> tuple[np.ndarray, int]:
     moving = np.ptp(chain, axis=0).max(axis=1) > 0  # (walkers,)
     if not moving.any():
         return np.full(chain.shape[-1], np.inf), chain.shape[1]
-    tau = emcee.autocorr.integrated_time(chain[:, moving], c=5, tol=0, quiet=True)
+    # a walker moved only by redraws of other coordinates keeps this one constant: its acf is 0/0, the
+    # coordinate's tau NaN, read as inf (not converged this round) without numpy's warning on stderr
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = emcee.autocorr.integrated_time(chain[:, moving], c=5, tol=0, quiet=True)
     return np.where(np.isfinite(tau), tau, np.inf), int((~moving).sum())
 
 
