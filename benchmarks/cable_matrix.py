@@ -26,9 +26,9 @@ and ``time_zoned_iwan5`` (the zoned family of ``iwan5``, in-family zones: 0.2 of
 ``delta_EJ`` x2, slip moment x5; 0.1 at the mass, x1.5, x3.75). Their verdict's curves are the stored fit's with its
 harmonic refit's correction where the refit was used; beside them, the first-harmonic model's own mode (polished from
 the stored median), what a fit without the harmonics gives. With 4 runs the run means alone are 1.2-2.7 % rms
-from the noise-free curves (seed 2029; the bench's noise at 4-15 Hz): ``TIME_RUNS`` 16 would put them within the
-target's reach, at ~17 min of recording (``--time-runs 16``; record once with ``--data DIR``, then diagnose
-with ``--recorded DIR``).
+from the noise-free curves (seed 2029; the bench's noise at 4-15 Hz). With ``--time-runs 16`` (record once with
+``--data DIR``, 20 min for ``time_iwan5`` and 46 min for ``time_zoned_iwan5`` on one core each, then diagnose with
+``--recorded DIR``) ``time_iwan5`` meets the target at every amplitude (``docs/results.md``).
 
 ``--data DIR`` only records: each row's bench CSV into DIR (``<row>.csv``) and, for the zoned rows,
 how far their noise-free curves are from the same cable without zones; no diagnosis. For each data
